@@ -1,0 +1,22 @@
+# The two README commands: `make demo` and `make test`. Both set everything up first.
+.PHONY: setup demo test test-rust test-python bench lint
+
+setup:
+	bash scripts/setup.sh
+
+demo: setup
+	.venv/bin/pointrig demo
+
+test: setup test-rust test-python
+
+test-rust:
+	cargo test --no-default-features --release -q
+
+test-python:
+	.venv/bin/python -m pytest -q
+
+bench: setup
+	.venv/bin/python benchmarks/run_all.py
+
+lint:
+	cargo fmt --check && cargo clippy --all-targets -- -D warnings

@@ -1,0 +1,5 @@
+"""``python -m pointrig`` runs the CLI."""
+
+from .cli import main
+
+raise SystemExit(main())

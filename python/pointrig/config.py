@@ -1,0 +1,151 @@
+"""Parameters: one frozen dataclass per pipeline stage, with the paper's Table 1 defaults.
+
+Units: every length is in metres and every squared length in m^2. The paper's Table 1 values
+assume metres (sigma^2 = 6e-4 m^2 is a 2.4 cm standard deviation); :func:`load_config` and the
+readers keep all data in metres, so inputs in millimetres must be scaled on reading
+(``scale=0.001``), never by changing these numbers.
+
+A TOML file overrides any field, one table per stage::
+
+    [registration]
+    beta_smooth = 1e3
+    [joints]
+    zeta = 1e4
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+from .errors import ConfigError
+
+__all__ = [
+    "PreprocessConfig",
+    "RegistrationConfig",
+    "StructureConfig",
+    "JointsConfig",
+    "PipelineConfig",
+    "load_config",
+]
+
+
+@dataclass(frozen=True)
+class PreprocessConfig:
+    """Input clean-up before step 1 (paper §3: a bounding box per sequence)."""
+
+    crop_min: tuple[float, float, float] | None = None  # axis-aligned crop box, metres
+    crop_max: tuple[float, float, float] | None = None
+    voxel_size: float = 0.0  # voxel downsampling of each frame, metres (0 = off)
+    frame_start: int = 0
+    frame_stop: int | None = None
+    frame_stride: int = 1
+    min_points: int = 50  # fewer points in a frame is an error
+
+
+@dataclass(frozen=True)
+class RegistrationConfig:
+    """Step 1, non-rigid registration (§4, Eqs. 1-12, Table 1)."""
+
+    rest_frame: int = 0  # which frame gives the rest pose (§4: "other frames can also be chosen")
+    n_rest_points: int = 2000  # M, points of the rest-pose point set surface
+    node_spacing: float = 0.0  # deformation-graph node spacing, metres (0 = from n_nodes)
+    n_nodes: int = 200  # target node count when node_spacing is 0
+    k_point_nodes: int = 4  # nodes driving each point (Eq. 2)
+    k_node_neighbors: int = 6  # node-to-node neighbours for E_smooth (Eq. 6)
+    omega: float = 0.01  # outlier weight (Eq. 1), Table 1
+    beta_smooth: float = 1e5  # E_smooth weight (Eq. 8a), Table 1
+    beta_small: float = 1.0  # E_small weight (Eq. 8a), Table 1
+    sigma2_init: float = 6e-4  # initial sigma^2, m^2 (§7.2)
+    max_iterations: int = 20  # EM iterations per frame (§6)
+    tolerance: float = 1e-5  # relative energy change that stops EM
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class StructureConfig:
+    """Step 2, skeletal structure extraction (§5, Eqs. 14-15)."""
+
+    n_clusters: int = 30  # initial k for k-means (§5.2); refinement removes the extra ones
+    cluster_rounds: int = 10  # rounds of fit / relabel / vote (§5.2)
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class JointsConfig:
+    """Step 3, LBS-based joint learning (§6, Eqs. 16-26, Table 1)."""
+
+    omega: float = 0.01  # omega', outlier weight (Eq. 16), Table 1
+    eta: float = 1.0  # boundary-centroid data weight in E_Joint (Eq. 20), Table 1
+    zeta: float = 1e4  # E_Register weight (Eq. 21a), Table 1
+    gamma: float = 0.1  # E_small weight (Eq. 21a), Table 1
+    alpha_growth: float = 1.45  # alpha starts at zeta * M, x1.45 per iteration (§7.2)
+    max_bones_per_point: int = 4  # sparsity of W (Eq. 21b)
+    tau_init: float = 6e-4  # initial tau^t, m^2 (§7.2)
+    max_iterations: int = 20
+    tolerance: float = 1e-5
+
+
+@dataclass(frozen=True)
+class PipelineConfig:
+    """All stages together."""
+
+    preprocess: PreprocessConfig = field(default_factory=PreprocessConfig)
+    registration: RegistrationConfig = field(default_factory=RegistrationConfig)
+    structure: StructureConfig = field(default_factory=StructureConfig)
+    joints: JointsConfig = field(default_factory=JointsConfig)
+
+    def to_dict(self) -> dict[str, dict[str, Any]]:
+        """Every parameter, by stage, as plain JSON-able values."""
+        return dataclasses.asdict(self)
+
+
+def _coerce(cls: type, stage: str, values: dict[str, Any]) -> Any:
+    known = {f.name: f for f in fields(cls)}
+    kwargs = {}
+    for key, val in values.items():
+        if key not in known:
+            raise ConfigError(
+                f"[{stage}] unknown parameter {key!r}; known: {', '.join(sorted(known))}"
+            )
+        default = getattr(cls(), key)
+        if isinstance(default, bool) and not isinstance(val, bool):
+            raise ConfigError(f"[{stage}] {key} must be true or false, got {val!r}")
+        if isinstance(default, float) and isinstance(val, int) and not isinstance(val, bool):
+            val = float(val)
+        if isinstance(val, list):
+            val = tuple(val)
+        kwargs[key] = val
+    return cls(**kwargs)
+
+
+def load_config(path: str | Path | None = None, base: PipelineConfig | None = None) -> PipelineConfig:
+    """Read a TOML parameter file over ``base`` (default: Table 1 defaults).
+
+    Raises
+    ------
+    ConfigError
+        If the file is missing, not TOML, or names an unknown stage or parameter.
+    """
+    base = base or PipelineConfig()
+    if path is None:
+        return base
+    p = Path(path)
+    try:
+        data = tomllib.loads(p.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"{p}: config file not found") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{p}: not valid TOML: {exc}") from None
+    stages = {f.name: f for f in fields(PipelineConfig)}
+    updates = {}
+    for stage, values in data.items():
+        if stage not in stages or not isinstance(values, dict):
+            raise ConfigError(f"{p}: unknown section [{stage}]; known: {', '.join(stages)}")
+        current = dataclasses.asdict(getattr(base, stage))
+        current.update(values)
+        updates[stage] = _coerce(type(getattr(base, stage)), stage, current)
+    return dataclasses.replace(base, **updates)

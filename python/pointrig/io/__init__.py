@@ -1,0 +1,35 @@
+"""Reading and writing point-cloud sequences.
+
+Supported inputs (see :func:`read_sequence`):
+
+- a directory of per-frame files in natural order (``frame_2`` before ``frame_10``):
+  PLY (ascii and binary), PCD, XYZ/TXT, NPY;
+- one ``.npz`` holding all frames;
+- a directory of 16-bit depth PNGs in millimetres plus an intrinsics JSON.
+
+All points are returned as ``(N, 3)`` float64 in metres.
+"""
+
+from __future__ import annotations
+
+from .atomic import atomic_path, write_json, write_npz
+from .readers import (
+    FRAME_FORMATS,
+    detect_format,
+    read_frame,
+    read_sequence,
+)
+from .writers import write_frame, write_ply, write_sequence
+
+__all__ = [
+    "FRAME_FORMATS",
+    "atomic_path",
+    "detect_format",
+    "read_frame",
+    "read_sequence",
+    "write_frame",
+    "write_json",
+    "write_npz",
+    "write_ply",
+    "write_sequence",
+]

@@ -1,0 +1,430 @@
+"""Readers for single frames and whole sequences.
+
+Every reader returns ``(N, 3)`` float64 points in metres and raises a subclass of
+:class:`pointrig.errors.InputError` naming the file (and frame) and the problem.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import EmptyFrameError, FormatError, InputError
+from ..sequence import PointSequence
+
+__all__ = ["FRAME_FORMATS", "detect_format", "read_frame", "read_sequence", "natural_key",
+           "read_intrinsics", "depth_to_points"]
+
+#: suffix -> format name for per-frame files
+FRAME_FORMATS = {".ply": "ply", ".pcd": "pcd", ".xyz": "xyz", ".txt": "xyz", ".npy": "npy",
+                 ".png": "depth-png"}
+
+_PLY_TYPES = {
+    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
+    "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
+}
+
+
+def natural_key(name: str) -> list:
+    """Sort key that orders ``frame_2`` before ``frame_10``."""
+    return [int(tok) if tok.isdigit() else tok.lower() for tok in re.split(r"(\d+)", name)]
+
+
+def _read_ply(path: Path) -> np.ndarray:
+    with open(path, "rb") as fh:
+        first = fh.readline()
+        if first.strip() != b"ply":
+            raise FormatError("not a PLY file (missing 'ply' magic)", path)
+        fmt = None
+        elements: list[tuple[str, int, list[tuple[str, str]]]] = []
+        while True:
+            line = fh.readline()
+            if not line:
+                raise FormatError("truncated PLY header (no end_header)", path)
+            toks = line.decode("ascii", "replace").split()
+            if not toks or toks[0] in ("comment", "obj_info"):
+                continue
+            if toks[0] == "end_header":
+                break
+            if toks[0] == "format":
+                fmt = toks[1]
+            elif toks[0] == "element":
+                elements.append((toks[1], int(toks[2]), []))
+            elif toks[0] == "property":
+                if not elements:
+                    raise FormatError("PLY property before any element", path)
+                if toks[1] == "list":
+                    elements[-1][2].append((toks[-1], "list:" + toks[2] + ":" + toks[3]))
+                else:
+                    if toks[1] not in _PLY_TYPES:
+                        raise FormatError(f"unknown PLY property type {toks[1]!r}", path)
+                    elements[-1][2].append((toks[-1], _PLY_TYPES[toks[1]]))
+        body = fh.read()
+    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
+        raise FormatError(f"unsupported PLY format {fmt!r}", path)
+    vert = [e for e in elements if e[0] == "vertex"]
+    if not vert:
+        raise FormatError("PLY file has no vertex element", path)
+    names = [p[0] for p in vert[0][2]]
+    if not {"x", "y", "z"} <= set(names):
+        raise FormatError(f"PLY vertex element lacks x/y/z (has {names})", path)
+    # vertex must come first among elements we need; elements before it must be fixed-size
+    if fmt == "ascii":
+        lines = body.decode("ascii", "replace").split("\n")
+        skip = 0
+        for name, count, _ in elements:
+            if name == "vertex":
+                break
+            skip += count
+        n = vert[0][1]
+        rows = [ln.split() for ln in lines[skip:skip + n]]
+        if len(rows) < n or any(len(r) < len(names) for r in rows):
+            raise FormatError(f"truncated PLY body: expected {n} vertices", path)
+        try:
+            arr = np.array([[float(r[names.index(c)]) for c in "xyz"] for r in rows],
+                           dtype=np.float64)
+        except ValueError as exc:
+            raise FormatError(f"bad number in PLY body: {exc}", path) from None
+        return arr.reshape(-1, 3)
+    endian = "<" if fmt == "binary_little_endian" else ">"
+    offset = 0
+    for name, count, props in elements:
+        if any(t.startswith("list:") for _, t in props):
+            if name == "vertex":
+                raise FormatError("list properties in the vertex element are not supported", path)
+            if name != "vertex":
+                break  # list elements after vertex are not needed
+        dtype = np.dtype([(pn, endian + t) for pn, t in props])
+        if name == "vertex":
+            need = dtype.itemsize * count
+            if len(body) - offset < need:
+                raise FormatError(
+                    f"truncated PLY body: expected {count} vertices ({need} bytes), "
+                    f"found {len(body) - offset} bytes", path)
+            rec = np.frombuffer(body, dtype=dtype, count=count, offset=offset)
+            return np.stack([rec["x"], rec["y"], rec["z"]], axis=1).astype(np.float64)
+        offset += dtype.itemsize * count
+    raise FormatError("PLY vertex element not readable", path)
+
+
+def _read_pcd(path: Path) -> np.ndarray:
+    raw = path.read_bytes()
+    header: dict[str, list[str]] = {}
+    pos = 0
+    while True:
+        end = raw.find(b"\n", pos)
+        if end < 0:
+            raise FormatError("truncated PCD header (no DATA line)", path)
+        line = raw[pos:end].decode("ascii", "replace").strip()
+        pos = end + 1
+        if not line or line.startswith("#"):
+            continue
+        toks = line.split()
+        header[toks[0].upper()] = toks[1:]
+        if toks[0].upper() == "DATA":
+            break
+    try:
+        fields = header["FIELDS"]
+        sizes = [int(s) for s in header["SIZE"]]
+        types = header["TYPE"]
+        counts = [int(c) for c in header.get("COUNT", ["1"] * len(fields))]
+        npts = int(header["POINTS"][0])
+        data = header["DATA"][0].lower()
+    except (KeyError, ValueError, IndexError) as exc:
+        raise FormatError(f"malformed PCD header: {exc}", path) from None
+    if not {"x", "y", "z"} <= set(fields):
+        raise FormatError(f"PCD lacks x/y/z fields (has {fields})", path)
+    kinds = {"F": "f", "I": "i", "U": "u"}
+    dtype = np.dtype([(f, "<" + kinds.get(t, "f") + str(s), (c,) if c > 1 else ())
+                      for f, s, t, c in zip(fields, sizes, types, counts)])
+    if data == "ascii":
+        text = raw[pos:].decode("ascii", "replace").split("\n")
+        rows = [r.split() for r in text if r.strip()]
+        if len(rows) < npts:
+            raise FormatError(f"truncated PCD body: expected {npts} points, found {len(rows)}",
+                              path)
+        try:
+            cols = np.array(rows[:npts], dtype=np.float64)
+        except ValueError as exc:
+            raise FormatError(f"bad number in PCD body: {exc}", path) from None
+        flat_idx = np.cumsum([0] + counts)[:-1]
+        return cols[:, [flat_idx[fields.index(c)] for c in "xyz"]].reshape(-1, 3)
+    if data == "binary":
+        need = dtype.itemsize * npts
+        if len(raw) - pos < need:
+            raise FormatError(f"truncated PCD body: expected {need} bytes, found {len(raw) - pos}",
+                              path)
+        rec = np.frombuffer(raw, dtype=dtype, count=npts, offset=pos)
+        return np.stack([rec["x"], rec["y"], rec["z"]], axis=1).astype(np.float64)
+    if data == "binary_compressed":
+        import open3d as o3d  # lazy: heavy import
+
+        pcd = o3d.io.read_point_cloud(str(path), format="pcd")
+        pts = np.asarray(pcd.points, dtype=np.float64)
+        if pts.shape[0] != npts:
+            raise FormatError("could not decode binary_compressed PCD", path)
+        return pts
+    raise FormatError(f"unsupported PCD DATA type {data!r}", path)
+
+
+def _read_xyz(path: Path) -> np.ndarray:
+    rows = []
+    for lineno, line in enumerate(path.read_text(errors="replace").splitlines(), 1):
+        s = line.strip()
+        if not s or s.startswith("#"):
+            continue
+        toks = s.replace(",", " ").split()
+        if len(toks) < 3:
+            raise FormatError(f"line {lineno}: expected at least 3 numbers, got {len(toks)}", path)
+        try:
+            rows.append([float(t) for t in toks[:3]])
+        except ValueError:
+            raise FormatError(f"line {lineno}: not a number: {s[:60]!r}", path) from None
+    return np.array(rows, dtype=np.float64).reshape(-1, 3)
+
+
+def _read_npy(path: Path) -> np.ndarray:
+    try:
+        arr = np.load(path, allow_pickle=False)
+    except (ValueError, OSError, EOFError) as exc:
+        raise FormatError(f"not a readable .npy array: {exc}", path) from None
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise InputError(f"expected an array of shape (N, 3), got {arr.shape}", path)
+    if not np.issubdtype(arr.dtype, np.number):
+        raise InputError(f"expected a numeric array, got dtype {arr.dtype}", path)
+    return arr.astype(np.float64)
+
+
+def read_intrinsics(path: str | Path) -> dict[str, float]:
+    """Read a camera intrinsics JSON with ``fx, fy, cx, cy`` (pixels) and ``depth_scale``.
+
+    ``depth_scale`` is metres per depth unit (default 0.001: depth PNGs in millimetres).
+    """
+    p = Path(path)
+    try:
+        doc = json.loads(p.read_text())
+    except FileNotFoundError:
+        raise InputError("intrinsics file not found", p) from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise FormatError(f"intrinsics is not valid JSON: {exc}", p) from None
+    out = {}
+    for key in ("fx", "fy", "cx", "cy"):
+        if key not in doc:
+            raise InputError(f"intrinsics lacks {key!r}", p)
+        out[key] = float(doc[key])
+    out["depth_scale"] = float(doc.get("depth_scale", 0.001))
+    if out["fx"] <= 0 or out["fy"] <= 0 or out["depth_scale"] <= 0:
+        raise InputError("fx, fy and depth_scale must be positive", p)
+    return out
+
+
+def depth_to_points(depth: np.ndarray, intr: dict[str, float]) -> np.ndarray:
+    """Back-project a depth image ``(H, W)`` (depth units) to ``(N, 3)`` metres, camera frame.
+
+    Pixels with depth 0 are invalid and skipped. ``x = (u - cx) z / fx``, ``y = (v - cy) z / fy``.
+    """
+    v, u = np.nonzero(depth > 0)
+    z = depth[v, u].astype(np.float64) * intr["depth_scale"]
+    x = (u - intr["cx"]) * z / intr["fx"]
+    y = (v - intr["cy"]) * z / intr["fy"]
+    return np.stack([x, y, z], axis=1)
+
+
+def _read_depth_png(path: Path, intr: dict[str, float]) -> np.ndarray:
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as im:
+            depth = np.asarray(im)
+    except (UnidentifiedImageError, OSError) as exc:
+        raise FormatError(f"not a readable PNG: {exc}", path) from None
+    if depth.ndim != 2:
+        raise InputError(f"depth PNG must be single-channel, got shape {depth.shape}", path)
+    if depth.dtype not in (np.uint16, np.int32, np.uint32, np.int16):
+        raise InputError(f"depth PNG must be 16-bit, got {depth.dtype}", path)
+    return depth_to_points(depth, intr)
+
+
+def read_frame(path: str | Path, intrinsics: dict[str, float] | None = None) -> np.ndarray:
+    """Read one frame file to ``(N, 3)`` float64 metres (no finiteness check here)."""
+    p = Path(path)
+    if not p.exists():
+        raise InputError("file not found", p)
+    fmt = FRAME_FORMATS.get(p.suffix.lower())
+    if fmt is None:
+        raise FormatError(f"unknown frame format {p.suffix!r}; expected one of "
+                          f"{sorted(set(FRAME_FORMATS))}", p)
+    try:
+        if fmt == "ply":
+            return _read_ply(p)
+        if fmt == "pcd":
+            return _read_pcd(p)
+        if fmt == "xyz":
+            return _read_xyz(p)
+        if fmt == "npy":
+            return _read_npy(p)
+        if intrinsics is None:
+            raise InputError("depth PNG needs camera intrinsics (intrinsics.json)", p)
+        return _read_depth_png(p, intrinsics)
+    except InputError:
+        raise
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise FormatError(f"unreadable file: {exc}", p) from None
+
+
+def detect_format(path: str | Path) -> str:
+    """The sequence format of ``path``: a frame format name, or ``"npz"``.
+
+    Raises
+    ------
+    InputError
+        Missing path, empty folder, or a folder mixing formats.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise InputError("path not found", p)
+    if p.is_file():
+        if p.suffix.lower() == ".npz":
+            return "npz"
+        raise FormatError("a sequence is a directory of frames or one .npz file", p)
+    files = [f for f in p.iterdir() if f.is_file() and f.suffix.lower() in FRAME_FORMATS]
+    kinds = sorted({FRAME_FORMATS[f.suffix.lower()] for f in files})
+    if not kinds:
+        raise InputError(f"no frame files found (expected {sorted(set(FRAME_FORMATS))})", p)
+    if len(kinds) > 1:
+        raise FormatError(f"mixed frame formats in one folder: {', '.join(kinds)}", p)
+    return kinds[0]
+
+
+def _read_npz(path: Path) -> tuple[list[np.ndarray], list[str]]:
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            keys = list(z.files)
+            if not keys:
+                raise InputError("npz holds no arrays", path)
+            if len(keys) == 1 and z[keys[0]].ndim == 3:
+                arr = z[keys[0]]
+                if arr.shape[2] != 3:
+                    raise InputError(f"expected an array (F, N, 3), got {arr.shape}", path)
+                return [a.astype(np.float64) for a in arr], [f"{keys[0]}[{i}]" for i in
+                                                              range(len(arr))]
+            keys = sorted(keys, key=natural_key)
+            frames = []
+            for i, k in enumerate(keys):
+                a = z[k]
+                if a.ndim != 2 or a.shape[1] != 3:
+                    raise InputError(f"array {k!r}: expected shape (N, 3), got {a.shape}", path,
+                                     frame=i)
+                frames.append(a.astype(np.float64))
+            return frames, keys
+    except InputError:
+        raise
+    except (ValueError, OSError, EOFError) as exc:
+        raise FormatError(f"not a readable .npz file: {exc}", path) from None
+
+
+def voxel_downsample(points: np.ndarray, voxel: float) -> np.ndarray:
+    """Average the points in each cubic voxel of side ``voxel`` metres: ``(N, 3) -> (K, 3)``."""
+    if voxel <= 0 or len(points) == 0:
+        return points
+    keys = np.floor(points / voxel).astype(np.int64)
+    _, inv, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    inv = inv.reshape(-1)
+    out = np.zeros((len(counts), 3))
+    np.add.at(out, inv, points)
+    return out / counts[:, None]
+
+
+def read_sequence(
+    path: str | Path,
+    *,
+    start: int = 0,
+    stop: int | None = None,
+    stride: int = 1,
+    crop_min: tuple[float, float, float] | np.ndarray | None = None,
+    crop_max: tuple[float, float, float] | np.ndarray | None = None,
+    voxel_size: float = 0.0,
+    intrinsics: str | Path | dict[str, float] | None = None,
+    scale: float = 1.0,
+    min_points: int = 1,
+    min_frames: int = 2,
+) -> PointSequence:
+    """Read a point-cloud sequence.
+
+    Parameters
+    ----------
+    path
+        A directory of per-frame files (PLY, PCD, XYZ/TXT, NPY, or 16-bit depth PNG with an
+        ``intrinsics.json`` beside them), or one ``.npz`` with all frames.
+    start, stop, stride
+        Frame range, Python slice semantics over the naturally sorted frames.
+    crop_min, crop_max
+        Axis-aligned crop box, ``(3,)`` metres (after ``scale``); points outside are dropped.
+    voxel_size
+        Voxel downsampling size in metres (0 = off).
+    intrinsics
+        For depth PNGs: a path to the intrinsics JSON or the dict; default
+        ``path/intrinsics.json``.
+    scale
+        Multiplier that converts the file's units to metres (e.g. 0.001 for millimetres).
+    min_points
+        Frames with fewer points (after crop/downsampling) raise :class:`EmptyFrameError`.
+    min_frames
+        Fewer frames raise :class:`InputError` (the method needs motion).
+
+    Returns
+    -------
+    PointSequence
+        ``F`` frames of ``(N_t, 3)`` float64 points in metres.
+    """
+    p = Path(path)
+    fmt = detect_format(p)
+    if stride < 1:
+        raise InputError(f"stride must be >= 1, got {stride}", p)
+    if fmt == "npz":
+        frames, names = _read_npz(p)
+        idx = list(range(len(frames)))[start:stop:stride]
+        frames = [frames[i] for i in idx]
+        names = [names[i] for i in idx]
+    else:
+        files = sorted((f for f in p.iterdir() if f.is_file()
+                        and FRAME_FORMATS.get(f.suffix.lower()) == fmt),
+                       key=lambda f: natural_key(f.name))
+        files = files[start:stop:stride]
+        intr = None
+        if fmt == "depth-png":
+            if isinstance(intrinsics, dict):
+                intr = intrinsics
+            else:
+                intr = read_intrinsics(intrinsics if intrinsics is not None
+                                       else p / "intrinsics.json")
+        frames = [read_frame(f, intr) for f in files]
+        names = [f.name for f in files]
+    if len(frames) < min_frames:
+        raise InputError(f"sequence has {len(frames)} frame(s) after frame selection; "
+                         f"at least {min_frames} are needed", p)
+    lo = None if crop_min is None else np.asarray(crop_min, dtype=np.float64)
+    hi = None if crop_max is None else np.asarray(crop_max, dtype=np.float64)
+    out = []
+    for i, (pts, name) in enumerate(zip(frames, names)):
+        pts = np.asarray(pts, dtype=np.float64) * scale
+        bad = ~np.isfinite(pts).all(axis=1)
+        if bad.any():
+            raise InputError(f"{int(bad.sum())} point(s) with NaN/inf coordinates "
+                             f"(first at row {int(np.argmax(bad))})", p / name if
+                             p.is_dir() else p, frame=i)
+        if lo is not None:
+            pts = pts[(pts >= lo).all(axis=1)]
+        if hi is not None:
+            pts = pts[(pts <= hi).all(axis=1)]
+        pts = voxel_downsample(pts, voxel_size)
+        if len(pts) < max(min_points, 1):
+            raise EmptyFrameError(
+                f"{len(pts)} point(s) after crop/downsampling; at least {max(min_points, 1)} "
+                "needed", p / name if p.is_dir() else p, frame=i)
+        out.append(pts)
+    return PointSequence(out, str(p), names, fmt)

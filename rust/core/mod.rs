@@ -1,0 +1,13 @@
+//! Numeric kernels, one file per kernel family. No PyO3 here.
+
+pub mod error;
+pub mod rotation;
+
+pub mod cluster;
+pub mod deform;
+pub mod gmm;
+pub mod lbs;
+pub mod neighbors;
+pub mod qp;
+
+pub use error::{CoreError, CoreResult};

@@ -1,0 +1,53 @@
+//! Bindings for small shared kernels (rotations).
+
+use nalgebra::Vector3;
+use numpy::{PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+
+use super::{flat1, points, to_array2};
+use crate::core::rotation;
+
+fn as_vecs(flat: &[f64]) -> Vec<Vector3<f64>> {
+    flat.chunks_exact(3)
+        .map(|c| Vector3::new(c[0], c[1], c[2]))
+        .collect()
+}
+
+/// Weighted absolute orientation (Kabsch, Eq. 14) with the det correction of Lemma 1.
+#[pyfunction]
+#[pyo3(signature = (src, dst, weights=None))]
+fn kabsch<'py>(
+    py: Python<'py>,
+    src: PyReadonlyArray2<'py, f64>,
+    dst: PyReadonlyArray2<'py, f64>,
+    weights: Option<PyReadonlyArray1<'py, f64>>,
+) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f64>>)> {
+    let s = as_vecs(points(py, &src, "src")?);
+    let d = as_vecs(points(py, &dst, "dst")?);
+    if s.len() != d.len() {
+        return Err(PyValueError::new_err(format!(
+            "src and dst must have the same number of points, got {} and {}",
+            s.len(),
+            d.len()
+        )));
+    }
+    let w = match &weights {
+        Some(w) => {
+            let w = flat1(py, w, "weights")?;
+            if w.len() != s.len() {
+                return Err(PyValueError::new_err("weights must have one entry per point"));
+            }
+            Some(w.to_vec())
+        }
+        None => None,
+    };
+    let (r, t) = py.detach(|| rotation::kabsch(&s, &d, w.as_deref()));
+    let rv: Vec<f64> = (0..3).flat_map(|i| (0..3).map(move |j| r[(i, j)])).collect();
+    Ok((to_array2(py, rv, 3)?, PyArray1::from_vec(py, t.iter().copied().collect())))
+}
+
+pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(kabsch, m)?)?;
+    Ok(())
+}
