@@ -1,0 +1,44 @@
+"""The command line: info on a sequence, clear one-line errors and exit codes."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+
+from pointrig.cli import main
+from pointrig.io import write_sequence
+
+
+def test_info_prints_summary(tmp_path, rng, capsys):
+    frames = [rng.normal(size=(n, 3)) for n in (100, 120, 140)]
+    write_sequence(tmp_path / "seq", frames, fmt="ply")
+    assert main(["info", str(tmp_path / "seq"), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["frames"] == 3 and out["points_median"] == 120 and out["format"] == "ply"
+    lo = np.min([f.min(0) for f in frames], axis=0)
+    np.testing.assert_allclose(out["bounds_min"], lo)
+
+
+def test_bad_input_exits_nonzero_with_one_line(tmp_path, capsys):
+    code = main(["info", str(tmp_path / "missing")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 1
+    assert len(err) == 1 and "missing" in err[0] and "not found" in err[0]
+
+
+def test_help_and_info_do_not_import_open3d(tmp_path, rng):
+    """open3d takes 3-4 s to import, so `pointrig --help` and `info` must not import it."""
+    write_sequence(tmp_path / "s", [rng.normal(size=(10, 3))] * 2, fmt="npy")
+    code = (
+        "import sys; from pointrig.cli import main;"
+        f" main(['info', {str(tmp_path / 's')!r}]);"
+        " print('open3d' in sys.modules, 'scipy' in sys.modules)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip().splitlines()[-1] == "False False"
+    res = subprocess.run([sys.executable, "-m", "pointrig", "--help"], capture_output=True,
+                         text=True)
+    assert res.returncode == 0 and "info" in res.stdout

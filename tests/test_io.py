@@ -1,0 +1,260 @@
+"""Sequence input: every format round-trips against an independent writer, every bad input
+raises a typed error naming the file/frame."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pointrig.errors import EmptyFrameError, FormatError, InputError
+from pointrig.io import read_frame, read_sequence, write_frame, write_sequence
+from pointrig.io.readers import depth_to_points, natural_key, voxel_downsample
+
+
+def _frames(rng, n_frames=3, n=200):
+    return [rng.normal(size=(n + 7 * t, 3)) for t in range(n_frames)]
+
+
+def _o3d_write(path: Path, pts: np.ndarray, ascii: bool) -> None:
+    import open3d as o3d
+
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
+    assert o3d.io.write_point_cloud(str(path), pcd, write_ascii=ascii)
+
+
+@pytest.mark.parametrize("suffix,ascii", [(".ply", False), (".ply", True), (".pcd", False),
+                                          (".pcd", True)])
+def test_open3d_written_frames_round_trip(tmp_path, rng, suffix, ascii):
+    frames = _frames(rng)
+    for t, pts in enumerate(frames):
+        _o3d_write(tmp_path / f"frame_{t}{suffix}", pts, ascii)
+    seq = read_sequence(tmp_path)
+    assert seq.fmt == suffix[1:]
+    assert len(seq) == len(frames)
+    for got, want in zip(seq.frames, frames):
+        # open3d ascii writes ~1e-6 relative precision; binary is exact float64
+        np.testing.assert_allclose(got, want, atol=1e-5 if ascii else 0)
+
+
+def test_open3d_compressed_pcd(tmp_path, rng):
+    import open3d as o3d
+
+    pts = rng.normal(size=(100, 3))
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
+    o3d.io.write_point_cloud(str(tmp_path / "a.pcd"), pcd, compressed=True)
+    np.testing.assert_allclose(read_frame(tmp_path / "a.pcd"), pts, atol=1e-6)
+
+
+@pytest.mark.parametrize("fmt", ["ply", "npy", "xyz", "pcd"])
+def test_own_writers_round_trip_and_open3d_reads_ply(tmp_path, rng, fmt):
+    frames = _frames(rng)
+    write_sequence(tmp_path, frames, fmt=fmt)
+    seq = read_sequence(tmp_path)
+    for got, want in zip(seq.frames, frames):
+        np.testing.assert_allclose(got, want, rtol=1e-8)
+    if fmt == "ply":  # open3d reads our binary float64 PLY (its PCD reader is float32-only)
+        import open3d as o3d
+
+        pcd = o3d.io.read_point_cloud(str(tmp_path / "frame_0000.ply"))
+        np.testing.assert_allclose(np.asarray(pcd.points), frames[0], rtol=1e-12)
+
+
+def test_xyz_and_txt_with_extra_columns_and_comments(tmp_path):
+    (tmp_path / "a.txt").write_text("# header\n1 2 3 9 9\n4,5,6\n\n")
+    (tmp_path / "b.txt").write_text("7 8 9\n")
+    seq = read_sequence(tmp_path)
+    np.testing.assert_array_equal(seq[0], [[1, 2, 3], [4, 5, 6]])
+    assert seq.fmt == "xyz"
+
+
+def test_npz_one_array_and_per_frame_arrays(tmp_path, rng):
+    frames = _frames(rng, 4)
+    np.savez(tmp_path / "seq.npz", **{f"frame_{t}": f for t, f in enumerate(frames)})
+    seq = read_sequence(tmp_path / "seq.npz")
+    for got, want in zip(seq.frames, frames):
+        np.testing.assert_array_equal(got, want)
+    stacked = rng.normal(size=(5, 50, 3))
+    np.savez(tmp_path / "stack.npz", points=stacked)
+    seq = read_sequence(tmp_path / "stack.npz")
+    assert len(seq) == 5 and np.array_equal(seq[4], stacked[4])
+
+
+def test_natural_order(tmp_path):
+    for t in (10, 2, 1):
+        np.save(tmp_path / f"frame_{t}.npy", np.full((3, 3), float(t)))
+    seq = read_sequence(tmp_path)
+    assert [f[0, 0] for f in seq.frames] == [1.0, 2.0, 10.0]
+    assert sorted(["f10", "f2"], key=natural_key) == ["f2", "f10"]
+
+
+def test_depth_png_back_projection(tmp_path):
+    from PIL import Image
+
+    intr = {"fx": 500.0, "fy": 400.0, "cx": 3.0, "cy": 2.0, "depth_scale": 0.001}
+    (tmp_path / "intrinsics.json").write_text(json.dumps(intr))
+    depth = np.zeros((5, 7), dtype=np.uint16)
+    depth[1, 4] = 1500
+    depth[3, 0] = 2000
+    for t in range(2):
+        Image.fromarray(depth).save(tmp_path / f"d_{t}.png")
+    seq = read_sequence(tmp_path)
+    assert seq.fmt == "depth-png"
+    pts = seq[0]
+    want = np.array([[(4 - 3) * 1.5 / 500, (1 - 2) * 1.5 / 400, 1.5],
+                     [(0 - 3) * 2.0 / 500, (3 - 2) * 2.0 / 400, 2.0]])
+    np.testing.assert_allclose(pts, want)
+    np.testing.assert_allclose(depth_to_points(depth, intr), want)
+
+
+def test_frame_range_crop_voxel_scale(tmp_path, rng):
+    frames = [rng.uniform(-1000, 1000, size=(500, 3)) for _ in range(6)]
+    write_sequence(tmp_path, frames, fmt="npy")
+    seq = read_sequence(tmp_path, start=1, stop=5, stride=2, scale=0.001,
+                        crop_min=(-0.5, -0.5, -0.5), crop_max=(0.5, 0.5, 0.5))
+    assert len(seq) == 2
+    for got, src in zip(seq.frames, (frames[1], frames[3])):
+        m = src * 0.001
+        keep = (np.abs(m) <= 0.5).all(axis=1)
+        np.testing.assert_allclose(got, m[keep])
+    pts = np.array([[0.01, 0.01, 0.01], [0.03, 0.03, 0.03], [0.51, 0.0, 0.0]])
+    np.testing.assert_allclose(voxel_downsample(pts, 0.1), [[0.02, 0.02, 0.02], [0.51, 0, 0]])
+
+
+# ---- bad input ---------------------------------------------------------------------------
+
+def test_missing_path(tmp_path):
+    with pytest.raises(InputError, match="not found") as e:
+        read_sequence(tmp_path / "nope")
+    assert "nope" in str(e.value)
+
+
+def test_empty_folder(tmp_path):
+    with pytest.raises(InputError, match="no frame files"):
+        read_sequence(tmp_path)
+
+
+def test_mixed_formats(tmp_path, rng):
+    np.save(tmp_path / "a.npy", rng.normal(size=(5, 3)))
+    write_frame(tmp_path / "b.ply", rng.normal(size=(5, 3)))
+    with pytest.raises(FormatError, match="mixed frame formats"):
+        read_sequence(tmp_path)
+
+
+def test_truncated_binary_ply_names_file(tmp_path, rng):
+    write_sequence(tmp_path, _frames(rng), fmt="ply")
+    p = tmp_path / "frame_0001.ply"
+    p.write_bytes(p.read_bytes()[:-100])
+    with pytest.raises(FormatError, match="truncated") as e:
+        read_sequence(tmp_path)
+    assert "frame_0001.ply" in str(e.value)
+
+
+def test_not_a_ply(tmp_path):
+    (tmp_path / "a.ply").write_text("hello\n")
+    (tmp_path / "b.ply").write_text("hello\n")
+    with pytest.raises(FormatError, match="not a PLY"):
+        read_sequence(tmp_path)
+
+
+def test_truncated_ascii_ply_and_pcd(tmp_path):
+    (tmp_path / "a.ply").write_text(
+        "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+        "property float z\nend_header\n1 2 3\n")
+    with pytest.raises(FormatError, match="truncated"):
+        read_frame(tmp_path / "a.ply")
+    (tmp_path / "b.pcd").write_text("VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\n"
+                                     "COUNT 1 1 1\nWIDTH 3\nHEIGHT 1\nPOINTS 3\nDATA ascii\n1 2 3\n")
+    with pytest.raises(FormatError, match="truncated"):
+        read_frame(tmp_path / "b.pcd")
+
+
+def test_empty_frame_names_frame(tmp_path, rng):
+    np.save(tmp_path / "f0.npy", rng.normal(size=(5, 3)))
+    np.save(tmp_path / "f1.npy", np.zeros((0, 3)))
+    with pytest.raises(EmptyFrameError) as e:
+        read_sequence(tmp_path)
+    assert e.value.frame == 1 and "f1.npy" in str(e.value)
+
+
+def test_nan_coordinates(tmp_path, rng):
+    bad = rng.normal(size=(5, 3))
+    bad[3, 1] = np.nan
+    np.save(tmp_path / "f0.npy", rng.normal(size=(5, 3)))
+    np.save(tmp_path / "f1.npy", bad)
+    with pytest.raises(InputError, match="NaN/inf") as e:
+        read_sequence(tmp_path)
+    assert e.value.frame == 1 and "row 3" in str(e.value)
+
+
+def test_inf_in_ply(tmp_path, rng):
+    pts = rng.normal(size=(5, 3))
+    pts[0, 0] = np.inf
+    write_frame(tmp_path / "a.ply", rng.normal(size=(5, 3)))
+    write_frame(tmp_path / "b.ply", pts)
+    with pytest.raises(InputError, match="NaN/inf"):
+        read_sequence(tmp_path)
+
+
+def test_wrong_array_shape(tmp_path, rng):
+    np.save(tmp_path / "f0.npy", rng.normal(size=(5, 4)))
+    np.save(tmp_path / "f1.npy", rng.normal(size=(5, 4)))
+    with pytest.raises(InputError, match=r"shape \(N, 3\)"):
+        read_sequence(tmp_path)
+    np.savez(tmp_path / "x.npz", a=rng.normal(size=(5, 2)), b=rng.normal(size=(5, 2)))
+    with pytest.raises(InputError, match="expected shape"):
+        read_sequence(tmp_path / "x.npz")
+
+
+def test_single_frame(tmp_path, rng):
+    np.save(tmp_path / "f0.npy", rng.normal(size=(5, 3)))
+    with pytest.raises(InputError, match="at least 2"):
+        read_sequence(tmp_path)
+
+
+def test_too_few_points(tmp_path, rng):
+    write_sequence(tmp_path, [rng.normal(size=(50, 3)), rng.normal(size=(3, 3))], fmt="npy")
+    with pytest.raises(EmptyFrameError, match="at least 10") as e:
+        read_sequence(tmp_path, min_points=10)
+    assert e.value.frame == 1
+
+
+def test_garbage_npy_and_npz(tmp_path):
+    (tmp_path / "a.npy").write_bytes(b"garbage")
+    (tmp_path / "b.npy").write_bytes(b"garbage")
+    with pytest.raises(FormatError, match="a.npy"):
+        read_sequence(tmp_path)
+    (tmp_path / "c.npz").write_bytes(b"garbage")
+    with pytest.raises(FormatError, match="npz"):
+        read_sequence(tmp_path / "c.npz")
+
+
+def test_depth_png_without_intrinsics(tmp_path):
+    from PIL import Image
+
+    for t in range(2):
+        Image.fromarray(np.ones((3, 3), dtype=np.uint16)).save(tmp_path / f"d{t}.png")
+    with pytest.raises(InputError, match="intrinsics"):
+        read_sequence(tmp_path)
+
+
+def test_writes_are_atomic(tmp_path, rng, monkeypatch):
+    """A failure while writing leaves neither a partial file nor a temporary file."""
+    from pointrig.io import write_npz
+
+    target = tmp_path / "out.npz"
+    target.write_bytes(b"old")
+
+    class Boom(Exception):
+        pass
+
+    def explode(*a, **k):
+        raise Boom()
+
+    monkeypatch.setattr(np, "savez_compressed", explode)
+    with pytest.raises(Boom):
+        write_npz(target, a=np.zeros(3))
+    assert target.read_bytes() == b"old"
+    assert [p.name for p in tmp_path.iterdir()] == ["out.npz"]
