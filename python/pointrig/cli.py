@@ -70,6 +70,82 @@ def cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
+class _ProgressPrinter:
+    """Progress on stderr: a live line on a terminal, a line per step/decile otherwise."""
+
+    def __init__(self, quiet: bool = False):
+        self.quiet = quiet
+        self.tty = sys.stderr.isatty()
+        self.last: tuple[str, int] = ("", -1)
+
+    def __call__(self, step: str, done: int, total: int, detail: str = "") -> None:
+        if self.quiet:
+            return
+        frac = done / max(total, 1)
+        msg = f"[{step}] {done}/{total}" + (f" {detail}" if detail else "")
+        if self.tty:
+            bar = "#" * int(24 * frac)
+            end = "\n" if done >= total else ""
+            print(f"\r{msg:<40} [{bar:<24}]", end=end, file=sys.stderr, flush=True)
+            return
+        decile = int(10 * frac)
+        if (step, decile) != self.last:
+            self.last = (step, decile)
+            print(msg, file=sys.stderr, flush=True)
+
+
+def _config_from_args(args: argparse.Namespace):
+    """The TOML config (if any) with the input options given on the command line on top."""
+    import dataclasses
+
+    from .config import load_config
+
+    cfg = load_config(args.config)
+    given = {
+        "crop_min": args.crop_min, "crop_max": args.crop_max,
+        "voxel_size": args.voxel or None, "frame_start": args.start or None,
+        "frame_stop": args.stop, "frame_stride": None if args.stride == 1 else args.stride,
+    }
+    pre = dataclasses.replace(cfg.preprocess, **{k: v for k, v in given.items() if v is not None})
+    return dataclasses.replace(cfg, preprocess=pre)
+
+
+def _read_configured(args: argparse.Namespace, cfg):
+    from .io import read_sequence
+
+    pre = cfg.preprocess
+    return read_sequence(
+        args.input, start=pre.frame_start, stop=pre.frame_stop, stride=pre.frame_stride,
+        crop_min=pre.crop_min, crop_max=pre.crop_max, voxel_size=pre.voxel_size,
+        intrinsics=args.intrinsics, scale=args.scale, min_points=pre.min_points,
+    )
+
+
+def _summary_line(res, out) -> str:
+    sk = res.skeleton
+    t = res.timings
+    total = sum(t.values())
+    parts = [f"{k} {v:.1f}s" for k, v in t.items()]
+    reused = " (registration reused)" if res.reused_registration else ""
+    return (f"{sk.n_joints} joints, {sk.n_bones} bones over {sk.n_frames} frames in "
+            f"{total:.1f}s ({', '.join(parts)}){reused} -> {out}")
+
+
+def cmd_extract(args: argparse.Namespace) -> int:
+    """Run the pipeline on a sequence."""
+    from .pipeline import extract
+
+    cfg = _config_from_args(args)
+    seq = _read_configured(args, cfg)
+    res = extract(seq, cfg, args.output, resume=args.resume, stop_after=args.stop_after,
+                  pictures=not args.no_pictures, progress=_ProgressPrinter(args.quiet))
+    if res.skeleton is None:
+        print(f"registration written to {res.files.get('registration')}")
+    else:
+        print(_summary_line(res, args.output))
+    return 0
+
+
 def cmd_demo(args: argparse.Namespace) -> int:
     """Run the main job on the bundled demo sequence."""
     from .data import demo_path
@@ -99,6 +175,18 @@ def build_parser() -> argparse.ArgumentParser:
     _add_input_options(p)
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=cmd_info)
+
+    p = sub.add_parser("extract", help="extract a skeleton from a sequence (steps 1-3)")
+    _add_input_options(p)
+    p.add_argument("-o", "--output", required=True, help="output folder")
+    p.add_argument("--config", default=None, help="TOML file overriding any parameter")
+    p.add_argument("--resume", action=argparse.BooleanOptionalAction, default=True,
+                   help="reuse OUT/registration.npz when input and step-1 parameters match")
+    p.add_argument("--stop-after", choices=["registration", "structure", "joints"],
+                   default="joints", help="stop after this step (structure: score step 2 alone)")
+    p.add_argument("--no-pictures", action="store_true", help="skip skeleton.png/.gif")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    p.set_defaults(func=cmd_extract)
 
     p = sub.add_parser("demo", help="run the pipeline on the bundled demo sequence")
     p.add_argument("-o", "--output", default=None, help="output folder (default: a temp folder)")

@@ -1,0 +1,214 @@
+"""The whole method: registration (§4) -> skeletal structure (§5) -> joint learning (§6).
+
+:func:`extract` runs the steps with a registration checkpoint (reused when the input and the
+step-1 parameters match, so changing a later step's parameter does not redo step 1) and
+writes the outputs atomically:
+
+- ``skeleton.json``  the ``pointrig.skeleton/1`` contract (see the README);
+- ``weights.npz``    rest points, skinning weights ``(M, B)``, labels, bone transforms;
+- ``registration.npz``  the step-1 checkpoint;
+- ``skeleton.png``, ``skeleton.gif``  pictures (optional).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from .config import PipelineConfig
+from .kinematics import joint_trajectories
+from .sequence import PointSequence
+from .skeleton import Skeleton
+
+__all__ = ["ExtractResult", "extract", "build_skeleton"]
+
+log = logging.getLogger(__name__)
+
+#: progress(step, done, total, detail)
+Progress = Callable[[str, int, int, str], None]
+StopAfter = Literal["registration", "structure", "joints"]
+
+
+@dataclass
+class ExtractResult:
+    """What :func:`extract` produced."""
+
+    skeleton: Skeleton | None
+    registration: Any
+    structure: Any = None
+    joints: Any = None
+    timings: dict[str, float] = field(default_factory=dict)
+    reused_registration: bool = False
+    files: dict[str, Path] = field(default_factory=dict)
+
+
+def _tree_order(bone_parent: np.ndarray) -> np.ndarray:
+    """Bone indices in breadth-first order from the root (parents before children)."""
+    bone_parent = np.asarray(bone_parent)
+    roots = [int(b) for b in np.flatnonzero(bone_parent < 0)]
+    order: list[int] = []
+    queue = list(roots)
+    while queue:
+        b = queue.pop(0)
+        order.append(b)
+        queue.extend(int(c) for c in np.flatnonzero(bone_parent == b))
+    missing = [b for b in range(len(bone_parent)) if b not in order]
+    return np.array(order + missing, dtype=np.int64)
+
+
+def build_skeleton(rest_points: np.ndarray, bone_parent: np.ndarray, joints_rest: np.ndarray,
+                   R: np.ndarray, T: np.ndarray, weights: np.ndarray | None,
+                   labels: np.ndarray | None) -> Skeleton:
+    """Assemble a :class:`Skeleton` with joints in parent-before-child order.
+
+    Joint ``b`` is the head of bone ``b`` (see :mod:`pointrig.kinematics`); skeleton bones
+    are the segments parent joint -> child joint.
+    """
+    order = _tree_order(bone_parent)
+    inv = np.empty_like(order)
+    inv[order] = np.arange(len(order))
+    parents = np.array([inv[bone_parent[b]] if bone_parent[b] >= 0 else -1 for b in order])
+    jr = joints_rest[order]
+    Ro, To = R[:, order], T[:, order]
+    jp = joint_trajectories(jr, Ro, To, parents)
+    non_root = [j for j in range(len(order)) if parents[j] >= 0]
+    return Skeleton(
+        joint_names=[f"j{j}" for j in range(len(order))],
+        parents=parents,
+        rest_positions=jr,
+        joint_positions=jp,
+        bone_heads=np.array([parents[j] for j in non_root], dtype=np.int64),
+        bone_tails=np.array(non_root, dtype=np.int64),
+        bone_rotations=Ro,
+        bone_translations=To,
+        weights=None if weights is None else weights[:, order],
+        rest_points=rest_points,
+        labels=None if labels is None else inv[labels],
+        bone_names=[f"b{j}" for j in non_root],
+    )
+
+
+def extract(
+    seq: PointSequence,
+    config: PipelineConfig | None = None,
+    out_dir: str | Path | None = None,
+    *,
+    resume: bool = True,
+    stop_after: StopAfter = "joints",
+    pictures: bool = True,
+    progress: Progress | None = None,
+) -> ExtractResult:
+    """Run the pipeline on a sequence and (if ``out_dir``) write the outputs.
+
+    Parameters
+    ----------
+    seq
+        The input frames, ``(N_t, 3)`` metres each.
+    config
+        All parameters (default: Table 1 defaults and pointrig's improvements).
+    out_dir
+        Output folder; ``None`` writes nothing.
+    resume
+        Reuse ``out_dir/registration.npz`` when its key (input + step-1 parameters) matches.
+    stop_after
+        ``"registration"``, ``"structure"`` (write the step-2 skeleton) or ``"joints"``.
+    pictures
+        Also write ``skeleton.png`` and ``skeleton.gif``.
+    progress
+        Called as ``progress(step, done, total, detail)``.
+    """
+    from . import joints as joints_mod
+    from . import registration as reg_mod
+    from . import structure as struct_mod
+
+    config = config or PipelineConfig()
+    out = None if out_dir is None else Path(out_dir)
+    timings: dict[str, float] = {}
+
+    def report(step: str) -> Callable[[int, int], None]:
+        return lambda done, total: progress(step, done, total, "") if progress else None
+
+    # ---- step 1: registration (with checkpoint) ---------------------------------------
+    t0 = time.perf_counter()
+    key = reg_mod.cache_key(seq, config.registration)
+    reg = None
+    ckpt = None if out is None else out / "registration.npz"
+    if resume and ckpt is not None and ckpt.exists():
+        try:
+            cached = reg_mod.RegistrationResult.load(ckpt)
+            if cached.params.get("cache_key") == key:
+                reg = cached
+                log.info("reusing registration checkpoint %s", ckpt)
+        except Exception as exc:  # a stale or damaged checkpoint is recomputed, not fatal
+            log.warning("ignoring registration checkpoint %s: %s", ckpt, exc)
+    reused = reg is not None
+    if reg is None:
+        reg = reg_mod.register_sequence(seq, config.registration, progress=report("registration"))
+        reg.params["cache_key"] = key
+        if ckpt is not None:
+            reg.save(ckpt)
+    timings["registration"] = time.perf_counter() - t0
+    result = ExtractResult(None, reg, timings=timings, reused_registration=reused)
+    if ckpt is not None:
+        result.files["registration"] = ckpt
+    if stop_after == "registration":
+        return result
+
+    # ---- step 2: skeletal structure ------------------------------------------------------
+    t0 = time.perf_counter()
+    st = struct_mod.extract_structure(reg.rest_points, reg.points, config.structure)
+    timings["structure"] = time.perf_counter() - t0
+    result.structure = st
+    if progress:
+        progress("structure", 1, 1, f"{len(st.bone_parent)} bones")
+    if stop_after == "structure":
+        weights = np.eye(len(st.bone_parent))[st.labels]
+        skel = build_skeleton(reg.rest_points, st.bone_parent, st.joints_rest, st.R, st.T,
+                              weights, st.labels)
+    else:
+        # ---- step 3: joint learning ------------------------------------------------------
+        t0 = time.perf_counter()
+        jr = joints_mod.learn_joints(seq.frames, reg.rest_points, reg.points, st,
+                                     config.joints, progress=report("joints"))
+        timings["joints"] = time.perf_counter() - t0
+        result.joints = jr
+        labels = np.argmax(jr.weights, axis=1)
+        skel = build_skeleton(reg.rest_points, st.bone_parent, jr.joints_rest, jr.R, jr.T,
+                              jr.weights, labels)
+    result.skeleton = skel
+
+    if out is not None:
+        source = {"input": str(seq.source), "format": seq.fmt, "frames": len(seq),
+                  "points_per_frame": [int(c) for c in seq.counts],
+                  "stopped_after": stop_after}
+        params = config.to_dict()
+        params["timings_s"] = {k: round(v, 3) for k, v in timings.items()}
+        skel.save_json(out / "skeleton.json", source=source, params=params)
+        skel.save_weights(out / "weights.npz")
+        result.files["skeleton"] = out / "skeleton.json"
+        result.files["weights"] = out / "weights.npz"
+        if pictures:
+            _write_pictures(out, seq, reg, skel)
+            result.files["png"] = out / "skeleton.png"
+            result.files["gif"] = out / "skeleton.gif"
+    return result
+
+
+def _write_pictures(out: Path, seq: PointSequence, reg: Any, skel: Skeleton) -> None:
+    """Skeleton over the registered points coloured by bone (PNG) and the animation (GIF)."""
+    from .viz import palette, save_sequence_gif, save_skeleton_png
+
+    cols = palette(max(skel.n_joints, 1))
+    labels = skel.labels if skel.labels is not None else np.zeros(len(reg.rest_points), int)
+    pc = [cols[labels]] * len(seq)
+    frames = [reg.points[t] for t in range(len(seq))]
+    save_skeleton_png(out / "skeleton.png", frames, skel.joint_positions, skel.parents,
+                      point_colors=pc)
+    save_sequence_gif(out / "skeleton.gif", frames, skel.joint_positions, skel.parents,
+                      point_colors=pc)
