@@ -10,7 +10,7 @@ demo: setup
 test: setup test-rust test-python
 
 test-rust:
-	cargo test --no-default-features --release -q
+	cargo test --no-default-features --profile fastdev -q
 
 test-python:
 	.venv/bin/python -m pytest -q
