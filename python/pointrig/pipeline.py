@@ -7,6 +7,7 @@ writes the outputs atomically:
 - ``skeleton.json``  the ``pointrig.skeleton/1`` contract (see the README);
 - ``weights.npz``    rest points, skinning weights ``(M, B)``, labels, bone transforms;
 - ``registration.npz``  the step-1 checkpoint;
+- ``skeleton.bvh``   the animated skeleton for Blender and game engines;
 - ``skeleton.png``, ``skeleton.gif``  pictures (optional).
 """
 
@@ -22,6 +23,7 @@ from typing import Any, Literal
 import numpy as np
 
 from .config import PipelineConfig
+from .export import write_bvh
 from .kinematics import joint_trajectories
 from .sequence import PointSequence
 from .skeleton import Skeleton
@@ -191,8 +193,10 @@ def extract(
         params["timings_s"] = {k: round(v, 3) for k, v in timings.items()}
         skel.save_json(out / "skeleton.json", source=source, params=params)
         skel.save_weights(out / "weights.npz")
+        write_bvh(out / "skeleton.bvh", skel)
         result.files["skeleton"] = out / "skeleton.json"
         result.files["weights"] = out / "weights.npz"
+        result.files["bvh"] = out / "skeleton.bvh"
         if pictures:
             _write_pictures(out, seq, reg, skel)
             result.files["png"] = out / "skeleton.png"
