@@ -1,4 +1,5 @@
 # The two README commands: `make demo` and `make test`. Both set everything up first.
+export PATH := $(HOME)/.cargo/bin:$(PATH)
 .PHONY: setup demo test test-rust test-python bench lint
 
 setup:
