@@ -16,6 +16,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..errors import ConfigError
+
 __all__ = ["FIGURES", "Dof", "Figure", "make_figure", "rodrigues"]
 
 FIGURES: tuple[str, ...] = ("human", "upper_body", "arm", "hand", "quadruped", "snake",
@@ -590,7 +592,7 @@ def make_figure(name: str, seed: int = 0) -> Figure:
     try:
         maker = _MAKERS[name]
     except KeyError:
-        raise ValueError(f"unknown figure {name!r}; choose one of {', '.join(FIGURES)}") \
+        raise ConfigError(f"unknown figure {name!r}; choose one of {', '.join(FIGURES)}") \
             from None
     del seed
     return maker()

@@ -18,6 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import ConfigError
+
 from .camera import Camera
 from .figures import FIGURES, make_figure, rodrigues
 from .noise import NoiseConfig, apply_depth_noise, lateral_offsets, outliers_in_box
@@ -387,9 +389,9 @@ def synthesize(
     noise = NoiseConfig() if noise is None else noise
     noise.validate()
     if n_frames < 1:
-        raise ValueError(f"n_frames must be >= 1, got {n_frames}")
+        raise ConfigError(f"n_frames must be >= 1, got {n_frames}")
     if fps <= 0 or speed < 0:
-        raise ValueError("fps must be > 0 and speed >= 0")
+        raise ConfigError("fps must be > 0 and speed >= 0")
     params = {"n_frames": int(n_frames), "seed": int(seed), "fps": float(fps),
               "speed": float(speed), "amplitude": float(amplitude), "walk": float(walk),
               "yaw": float(yaw)}
@@ -404,6 +406,6 @@ def synthesize(
         posed = pose_gltf(src, n_frames, fps=fps, speed=speed, walk=walk, yaw=yaw, clip=clip,
                           start=start, seed=seed, surface_points=surface_points)
     else:
-        raise ValueError(f"unknown source {src!r}: expected one of {', '.join(FIGURES)} or a "
+        raise ConfigError(f"unknown source {src!r}: expected one of {', '.join(FIGURES)} or a "
                          ".glb/.gltf file")
     return render_posed(posed, camera, noise, fps, src, params)
