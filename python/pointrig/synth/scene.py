@@ -33,6 +33,8 @@ log = logging.getLogger(__name__)
 DEFAULT_SURFACE_POINTS = 3000
 #: Floor/wall half-extent around the subject, metres.
 SCENE_HALF_EXTENT = 4.0
+#: The floor stops this far in front of the camera (metres).
+FLOOR_NEAR = 0.3
 
 
 @dataclass
@@ -181,7 +183,7 @@ def load_gt(path: str | Path) -> dict[str, Any]:
     from ..errors import InputError
 
     p = Path(path)
-    if p.is_dir():
+    if p.is_dir() or (not p.exists() and p.suffix == ""):
         p = p / "gt.npz"
     if not p.exists():
         raise InputError("ground-truth file not found", p)
@@ -234,9 +236,12 @@ def pose_figure(name: str, n_frames: int, fps: float, speed: float, amplitude: f
                  fig.facing, {"figure": name, "triangles": int(len(fig.triangles))})
 
 
-def _scene_quads(lo: np.ndarray, hi: np.ndarray, facing: np.ndarray, noise: NoiseConfig
-                 ) -> tuple[np.ndarray, np.ndarray]:
-    """World-frame floor and wall quads as vertices ``(V, 3)`` and triangles ``(T, 3)``."""
+def _scene_quads(lo: np.ndarray, hi: np.ndarray, facing: np.ndarray, noise: NoiseConfig,
+                 eye: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World-frame floor and wall quads as vertices ``(V, 3)`` and triangles ``(T, 3)``.
+
+    The floor ends :data:`FLOOR_NEAR` in front of the camera position ``eye`` (the rasteriser
+    does not clip triangles crossing the camera plane)."""
     verts, tris = [], []
     c = (lo + hi) / 2
     e = SCENE_HALF_EXTENT
@@ -245,8 +250,10 @@ def _scene_quads(lo: np.ndarray, hi: np.ndarray, facing: np.ndarray, noise: Nois
     side /= np.linalg.norm(side)
     if noise.floor:
         y = lo[1] - 0.002
-        q = np.array([[c[0] - e, y, c[2] - e], [c[0] + e, y, c[2] - e],
-                      [c[0] + e, y, c[2] + e], [c[0] - e, y, c[2] + e]])
+        s_near = min(e, float((eye - c) @ f) - FLOOR_NEAR)
+        q = np.array([c - side * e - f * e, c + side * e - f * e, c + side * e + f * s_near,
+                      c - side * e + f * s_near])
+        q[:, 1] = y
         verts.append(q)
     if noise.background:
         depth_half = float(np.abs((hi - lo) / 2 @ np.abs(f)))
@@ -274,7 +281,8 @@ def render_posed(posed: Posed, camera: Camera | None, noise: NoiseConfig, fps: f
         cam = cam.placed_for(lo, hi, posed.facing)
     Rc = np.asarray(cam.rotation, dtype=np.float64)
     tc = np.asarray(cam.translation, dtype=np.float64)
-    scene_v, scene_t = _scene_quads(lo, hi, posed.facing, noise)
+    eye = -Rc.T @ tc
+    scene_v, scene_t = _scene_quads(lo, hi, posed.facing, noise, eye)
     scene_v_cam = cam.world_to_camera(scene_v)
     n_tri = len(posed.triangles)
     all_tris = np.concatenate([posed.triangles, scene_t + posed.vertices.shape[1]])
