@@ -153,10 +153,15 @@ class SynthSequence:
             "meta": np.array(json.dumps({"noise": self.noise.to_dict(), "params": self.params})),
         }
 
-    def write(self, out_dir: str | Path, binary: bool = True) -> Path:
+    def write(self, out_dir: str | Path, binary: bool = True, float32: bool = False) -> Path:
         """Write ``out_dir/frames/frame_0000.ply ...`` and ``out_dir/gt.npz``; return
-        ``out_dir``."""
+        ``out_dir``.
+
+        Frames are binary little-endian PLY in float64 (``float32=True`` halves the size; the
+        rounding is below 1 micrometre at Kinect ranges), or ascii with ``binary=False``.
+        """
         from ..io import write_npz, write_ply
+        from ..io.atomic import atomic_path
 
         out = Path(out_dir)
         fdir = out / "frames"
@@ -164,7 +169,16 @@ class SynthSequence:
         for old in fdir.glob("frame_*.ply"):
             old.unlink()
         for t, pts in enumerate(self.frames):
-            write_ply(fdir / f"frame_{t:04d}.ply", pts, binary=binary)
+            path = fdir / f"frame_{t:04d}.ply"
+            if float32 and binary:
+                header = ("ply\nformat binary_little_endian 1.0\n"
+                          f"element vertex {len(pts)}\nproperty float x\nproperty float y\n"
+                          "property float z\nend_header\n")
+                with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+                    fh.write(header.encode("ascii"))
+                    fh.write(np.ascontiguousarray(pts, dtype="<f4").tobytes())
+            else:
+                write_ply(path, pts, binary=binary)
         write_npz(out / "gt.npz", **self.gt_arrays())
         return out
 
@@ -288,20 +302,21 @@ def render_posed(posed: Posed, camera: Camera | None, noise: NoiseConfig, fps: f
     all_tris = np.concatenate([posed.triangles, scene_t + posed.vertices.shape[1]])
     tri_label = np.argmax(posed.weights[posed.triangles].sum(axis=1), axis=1)
     frames, labels = [], []
+    rays = None
+    if noise.grazing_cos > 0:
+        vv, uu = np.mgrid[0:cam.height, 0:cam.width].astype(np.float64)
+        rays = np.stack([(uu - cam.cx) / cam.fx, (vv - cam.cy) / cam.fy, np.ones_like(uu)],
+                        axis=-1)
+        rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
     for t in range(F):
         v_cam = cam.world_to_camera(posed.vertices[t])
         verts = np.concatenate([v_cam, scene_v_cam])
         depth, tri_idx = rasterize(verts, all_tris, cam)
         cos_view = None
-        if noise.grazing_cos > 0:
+        if rays is not None:
             tv = verts[all_tris]
             n = np.cross(tv[:, 1] - tv[:, 0], tv[:, 2] - tv[:, 0])
             n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-            H, W = depth.shape
-            vv, uu = np.mgrid[0:H, 0:W]
-            rays = np.stack([(uu - cam.cx) / cam.fx, (vv - cam.cy) / cam.fy, np.ones_like(uu,
-                            dtype=np.float64)], axis=-1)
-            rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
             hit = tri_idx >= 0
             cos_view = np.ones(depth.shape)
             cos_view[hit] = np.abs(np.einsum("ni,ni->n", n[tri_idx[hit]], rays[hit]))
