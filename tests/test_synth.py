@@ -162,8 +162,14 @@ def test_noise_config_validation():
 
 
 @pytest.mark.parametrize("name", FIGURES)
-def test_figures_kinematics_consistent(name):
-    fig = make_figure(name)
+@pytest.mark.parametrize("seed", [0, 3])
+def test_figures_kinematics_consistent(name, seed):
+    fig = make_figure(name, seed=seed)
+    if seed:
+        base = make_figure(name)
+        ratio = np.linalg.norm(fig.tails - fig.heads, axis=1) / np.linalg.norm(
+            base.tails - base.heads, axis=1)
+        assert ratio.std() > 0.01 and 0.75 < ratio.min() and ratio.max() < 1.3
     assert fig.parents[0] == -1 and (fig.parents[1:] < np.arange(1, fig.n_bones)).all()
     np.testing.assert_allclose(fig.weights.sum(1), 1.0, atol=1e-12)
     assert (fig.weights >= 0).all()
@@ -193,7 +199,7 @@ def test_sequence_ground_truth_is_consistent_and_clean_points_on_surface():
         seq.bone_translations[:, lab]
     np.testing.assert_allclose(moved, seq.surface, atol=1e-10)
     # joints = bone heads moved by their bone (rest heads from the figure)
-    fig = make_figure("robot_arm")
+    fig = make_figure("robot_arm", seed=2)
     heads = np.einsum("fbij,bj->fbi", seq.bone_rotations, fig.heads) + seq.bone_translations
     np.testing.assert_allclose(heads, seq.gt_joints, atol=1e-10)
     # clean points back-project to pixel centres

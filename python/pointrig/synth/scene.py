@@ -34,7 +34,7 @@ DEFAULT_SURFACE_POINTS = 3000
 #: Floor/wall half-extent around the subject, metres.
 SCENE_HALF_EXTENT = 4.0
 #: The floor stops this far in front of the camera (metres).
-FLOOR_NEAR = 0.3
+FLOOR_NEAR = 0.05
 
 
 @dataclass
@@ -272,7 +272,7 @@ def _scene_quads(lo: np.ndarray, hi: np.ndarray, facing: np.ndarray, noise: Nois
     if noise.background:
         depth_half = float(np.abs((hi - lo) / 2 @ np.abs(f)))
         centre = c - f * (depth_half + noise.background_distance)
-        y0, y1 = lo[1] - 0.5, hi[1] + 2.0
+        y0, y1 = (lo[1] - 0.002 if noise.floor else lo[1] - 0.5), hi[1] + 2.0
         q = np.array([centre + side * -e, centre + side * e, centre + side * e,
                       centre + side * -e])
         q[:, 1] = [y0, y0, y1, y1]
@@ -377,7 +377,8 @@ def synthesize(
     n_frames
         Number of frames ``F``.
     seed
-        Seeds the motion (procedural figures) and the surface samples.
+        Seeds the motion and the body proportions of procedural figures (``0``: canonical
+        proportions, see :func:`make_figure`) and the surface samples.
     camera
         Intrinsics and optionally the extrinsic; ``None`` is a Kinect v1 at 640x480
         (``Camera.kinect(320)`` for 320x240). Without an extrinsic the camera is placed in
