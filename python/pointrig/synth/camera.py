@@ -17,6 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import ConfigError
+
 __all__ = ["Camera", "look_at"]
 
 #: Kinect v1 depth intrinsics at 640x480 (fx = fy = 525 px, principal point at the centre).
@@ -77,7 +79,7 @@ class Camera:
         """Kinect v1 intrinsics at 640x480 (``width=640``) or 320x240 (``width=320``, focal
         length halved). Extrinsic unset (auto-placed)."""
         if width not in (320, 640):
-            raise ValueError(f"Kinect resolution is 640x480 or 320x240, got width {width}")
+            raise ConfigError(f"Kinect resolution is 640x480 or 320x240, got width {width}")
         s = width / KINECT_WIDTH
         h = int(round(KINECT_HEIGHT * s))
         return cls(KINECT_FX * s, KINECT_FX * s, (width - 1) / 2, (h - 1) / 2, width, h)

@@ -23,6 +23,8 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
+from ..errors import ConfigError
+
 __all__ = ["NoiseConfig", "axial_sigma", "apply_depth_noise", "outliers_in_box"]
 
 # random stream ids, one per corruption
@@ -77,13 +79,13 @@ class NoiseConfig:
         for name in ("dropout", "flying", "grazing_cos"):
             v = getattr(self, name)
             if not 0.0 <= v <= 1.0:
-                raise ValueError(f"noise {name} must be in [0, 1], got {v}")
+                raise ConfigError(f"noise {name} must be in [0, 1], got {v}")
         for name in ("axial_a", "axial_b", "quant_subpixel", "quant_baseline", "quant_focal",
                      "lateral_px", "flying_jump", "flying_max", "outliers", "outlier_margin",
                      "background_distance"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
-                raise ValueError(f"noise {name} must be finite and >= 0, got {v}")
+                raise ConfigError(f"noise {name} must be finite and >= 0, got {v}")
 
 
 def _rng(cfg: NoiseConfig, frame: int, stream: int) -> np.random.Generator:
@@ -109,8 +111,8 @@ def quantize_depth(z: np.ndarray, cfg: NoiseConfig) -> np.ndarray:
 
 def _neighbour_stats(depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per pixel: max depth among valid 4-neighbours (0 if none) and whether any 4-neighbour is
-    invalid (or outside the image)."""
-    pad = np.pad(depth, 1, constant_values=0.0)
+    invalid (the image border counts as a copy of the edge pixels)."""
+    pad = np.pad(depth, 1, mode="edge")
     nb = np.stack([pad[:-2, 1:-1], pad[2:, 1:-1], pad[1:-1, :-2], pad[1:-1, 2:]])
     return nb.max(axis=0), (nb <= 0).any(axis=0)
 
