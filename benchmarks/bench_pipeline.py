@@ -43,7 +43,8 @@ def variants(cfg: PipelineConfig) -> dict[str, PipelineConfig]:
 
 
 def score(pred: np.ndarray, synth) -> dict:
-    rep = evaluate(pred, synth.gt_joints, synth.joint_parents, skinned=synth.skinned)
+    rep = evaluate(pred, synth.gt_joints, synth.joint_parents, skinned=synth.skinned,
+                   surface=synth.surface, surface_labels=synth.surface_labels)
     return {"recall": rep.recall, "precision": rep.precision, "raw_cm": 100 * rep.raw_error,
             "norm_cm": 100 * rep.normalized_error, "pred": int(pred.shape[1])}
 

@@ -147,15 +147,23 @@ def cmd_extract(args: argparse.Namespace) -> int:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    """Run the main job on the bundled demo sequence."""
+    """Run the main job on the bundled demo sequence and score it against its ground truth."""
+    from .config import PipelineConfig
     from .data import demo_path
+    from .evaluate import evaluate_files
     from .io import read_sequence
+    from .pipeline import extract
 
     path = demo_path()
     seq = read_sequence(path / "frames")
     s = seq.summary()
     print(f"demo sequence {path}: {s['frames']} frames, "
           f"{s['points_min']}-{s['points_max']} points per frame")
+    res = extract(seq, PipelineConfig(), args.output, progress=_ProgressPrinter(args.quiet))
+    print(_summary_line(res, args.output))
+    rep = evaluate_files(args.output + "/skeleton.json", path / "gt.npz")
+    print(rep.format_table())
+    print(f"outputs: {', '.join(str(p) for p in res.files.values())}")
     return 0
 
 
@@ -263,7 +271,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_extract)
 
     p = sub.add_parser("demo", help="run the pipeline on the bundled demo sequence")
-    p.add_argument("-o", "--output", default=None, help="output folder (default: a temp folder)")
+    p.add_argument("-o", "--output", default="pointrig-demo",
+                   help="output folder (default: ./pointrig-demo)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=cmd_demo)
 
     p = sub.add_parser("synth", help="render a synthetic depth-camera sequence with ground truth")
