@@ -87,6 +87,9 @@ class StructureConfig:
     # candidate bones of (ii) and the touching test of §5.3
     # ball radius of (iii) = vote_radius_ratio * median distance to the vote_neighbors-th neighbour
     vote_radius_ratio: float = 2.0
+    # the vote (iii) may move a point only to a bone whose residual for that point is at most
+    # vote_guard_ratio times the point's best candidate residual (0 = unguarded vote, as in §5.2)
+    vote_guard_ratio: float = 2.0
     post_merge_rounds: int = 3  # fit / relabel / vote rounds after each refinement pass
 
     # --- bone graph (§5.3) ---
@@ -107,6 +110,11 @@ class StructureConfig:
     noise_margin: float = 1.0
     min_cluster_fraction: float = 0.005  # clusters with fewer than this * M points are absorbed
     leaf_min_fraction: float = 0.01  # spurious leaf: a leaf at a branching parent with < this * M
+    # blend band: a bone with >= 2 tree neighbours whose trajectories are fitted by a per-point
+    # blend (1-w) x_a + w x_b of two neighbours' motions (one w per point, all frames) with a
+    # residual variance (per degree of freedom) <= band_ratio * that of its own rigid fit is a
+    # skinning transition (e.g. over-smoothed registration near a joint), not a bone
+    band_ratio: float = 1.5
     # short bone: a non-root, non-leaf bone whose head joint and all its child joints lie within
     # short_bone_ratio * (RMS radius of the rest points) -> joints merged, bone removed
     short_bone_ratio: float = 0.05

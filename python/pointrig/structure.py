@@ -283,18 +283,15 @@ def _cluster_rounds(ctx: _Ctx, labels: np.ndarray, rounds: int) -> np.ndarray:
         cand = _candidates(ctx, labels)
         res = _core.cluster_residuals(ctx.Q, ctx.Y, R, T, cand)
         new = cand[np.arange(ctx.M), res.argmin(1)]
-        import os
-        if os.environ.get("VOTE_MODE") == "guard":
-            voted = _vote(ctx, new)
-            # accept the vote only where the voted bone is a candidate fitting within 2x best
-            col = (cand == voted[:, None])
-            rv = np.where(col, res, np.inf).min(1)
-            best = res.min(1)
-            new = np.where(rv <= 2.0 * best + 1e-12, voted, new)
-        elif os.environ.get("VOTE_MODE") == "first":
-            pass
+        # (iii) majority vote in the rest-pose ball, guarded by the motion evidence: a point
+        # takes the voted bone only if that bone is one of its candidates with a residual of
+        # at most vote_guard_ratio times its best one (otherwise thin parts are voted away)
+        voted = _vote(ctx, new)
+        if ctx.cfg.vote_guard_ratio > 0:
+            rv = np.where(cand == voted[:, None], res, np.inf).min(1)
+            new = np.where(rv <= ctx.cfg.vote_guard_ratio * res.min(1), voted, new)
         else:
-            new = _vote(ctx, new)
+            new = voted
         new, B = _compact(new)
         if np.array_equal(new, labels):
             break
@@ -493,6 +490,19 @@ def _boundary_centroids(ctx: _Ctx, labels: np.ndarray, parent: np.ndarray) -> np
     return out
 
 
+def _blend_fit(q: np.ndarray, y: np.ndarray, R: np.ndarray, T: np.ndarray, a: int, b: int
+               ) -> tuple[float, np.ndarray]:
+    """Per-point LBS blend of bones ``a`` and ``b``: ``y ~ (1-w) x_a + w x_b`` with one
+    ``w in [0, 1]`` per point for all frames (closed form). Returns (residual m^2, w (n,))."""
+    xa = np.einsum("fij,mj->fmi", R[:, a], q) + T[:, a, None]
+    xb = np.einsum("fij,mj->fmi", R[:, b], q) + T[:, b, None]
+    d, r = xb - xa, y - xa
+    den = (d * d).sum((0, 2))
+    w = np.clip((r * d).sum((0, 2)) / np.maximum(den, 1e-300), 0.0, 1.0)
+    res = float(((r - w[None, :, None] * d) ** 2).sum())
+    return res, w
+
+
 def _prune(ctx: _Ctx, labels: np.ndarray, parent: np.ndarray, joints: np.ndarray,
            counts: np.ndarray, diag: dict[str, Any]) -> np.ndarray | None:
     """One pruning step of §5.4 on the tree; returns new labels or ``None`` if nothing to do.
@@ -513,6 +523,32 @@ def _prune(ctx: _Ctx, labels: np.ndarray, parent: np.ndarray, joints: np.ndarray
         b = min(leaves, key=lambda x: counts[x])
         diag.setdefault("pruned_leaves", []).append(int(counts[b]))
         return np.where(labels == b, parent[b], labels)
+    # blend bands: bones explained by per-point blending of two tree neighbours
+    R, T, _c = ctx.fit(labels, B)
+    bands = []
+    for b in range(B):
+        nb = ([int(parent[b])] if parent[b] >= 0 else []) + [int(c) for c in children[b]]
+        if len(nb) < 2 or cfg.band_ratio <= 0:
+            continue
+        sel = np.flatnonzero(labels == b)
+        q, y = ctx.Q[sel], ctx.Y[:, sel]
+        own = ((y - np.einsum("fij,mj->fmi", R[:, b], q) - T[:, b, None]) ** 2).sum()
+        for ia in range(len(nb)):
+            for ib in range(ia + 1, len(nb)):
+                res, w = _blend_fit(q, y, R, T, nb[ia], nb[ib])
+                # compare residual variances per degree of freedom: the rigid fit spends 6
+                # per frame, the blend one per point
+                n = len(sel)
+                ratio = (res / max(ctx.F * 3 * n - n, 1)) / max(
+                    own / max(ctx.F * (3 * n - 6), 1), 1e-300)
+                if ratio <= cfg.band_ratio:
+                    bands.append((ratio, b, nb[ia], nb[ib], sel, w))
+    if bands:
+        ratio, b, a, c, sel, w = min(bands, key=lambda x: x[0])
+        new = labels.copy()
+        new[sel] = np.where(w < 0.5, a, c)
+        diag.setdefault("bands_removed", []).append(round(float(ratio), 4))
+        return new
     thr = cfg.short_bone_ratio * ctx.rms_radius
     short = []
     for b in range(B):
