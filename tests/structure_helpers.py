@@ -59,6 +59,13 @@ def make_figure(kind: str) -> Figure:
             ("r_thigh", "pelvis", (-0.10, 0.88, 0), (-0.11, 0.50, 0), 0.065),
             ("r_shin", "r_thigh", (-0.11, 0.50, 0), (-0.11, 0.10, 0), 0.05, X),
         ])
+    if kind == "humanoid_raised":  # left arm raised beside the head (occlusion test)
+        fig = make_figure("humanoid")
+        i, j = fig.names.index("l_upper"), fig.names.index("l_fore")
+        fig.a[i], fig.b[i] = (0.17, 1.42, 0), (0.18, 1.74, 0)
+        fig.a[j], fig.b[j] = (0.18, 1.74, 0), (0.19, 1.98, 0)
+        fig.hinge[j] = X
+        return fig
     if kind == "arm":
         return _fig([
             ("base", None, (0, 0, 0), (0, 0.10, 0), 0.06),
@@ -173,15 +180,21 @@ def pose(rest, labels, R, T, fig: Figure | None = None, blend: float = 0.0):
 
 
 def make_sequence(kind: str, n_points: int = 1500, n_frames: int = 40, seed: int = 0,
-                  noise: float = 0.0, blend: float = 0.0, smooth_frames: int = 0):
+                  noise: float = 0.0, blend: float = 0.0, smooth_frames: int = 0,
+                  hide_near_joint: tuple[str, float] | None = None):
     """A dict with rest (M,3), points (F,M,3), labels (M,), figure, R, T.
 
     ``noise``: per-frame Gaussian jitter (m); ``smooth_frames``: temporal moving-average window
-    applied to the trajectories (imitates over-smoothed registration).
+    applied to the trajectories (imitates over-smoothed registration); ``hide_near_joint``:
+    (part name, radius) drops every point within radius of that part's joint (occlusion).
     """
     rng = np.random.default_rng(seed)
     fig = make_figure(kind)
     rest, labels = sample_surface(fig, n_points, rng)
+    if hide_near_joint is not None:
+        name, rad = hide_near_joint
+        keep = np.linalg.norm(rest - fig.a[fig.names.index(name)], axis=1) > rad
+        rest, labels = rest[keep], labels[keep]
     R, T = animate(fig, n_frames, rng)
     pts = pose(rest, labels, R, T, fig, blend)
     if smooth_frames > 1:

@@ -115,10 +115,12 @@ class StructureConfig:
     # residual variance (per degree of freedom) <= band_ratio * that of its own rigid fit is a
     # skinning transition (e.g. over-smoothed registration near a joint), not a bone
     band_ratio: float = 1.5
-    # short bone: a non-root, non-leaf bone whose head joint and all its child joints lie within
-    # short_bone_ratio * (RMS radius of the rest points) -> joints merged, bone removed
-    short_bone_ratio: float = 0.05
-    refine_passes: int = 6  # maximum rounds of merge / prune / rebuild
+    # close joints / short bone: a non-root bone with children whose head joint and every child
+    # joint (Eq. 20) lie within short_bone_ratio * its extent (95th percentile distance of its
+    # points from their centroid) spans no length: a ring around one joint -> joints merged,
+    # bone removed (real bones measured >= 1.3, joint rings <= 0.55)
+    short_bone_ratio: float = 0.75
+    refine_passes: int = 25  # maximum rounds of merge / prune / rebuild (one pruning each)
 
     # --- initial joints (Eq. 20) ---
     eta: float = 1.0  # boundary-centroid data weight in E_Joint (Eq. 20), Table 1

@@ -58,6 +58,8 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
+_BAND_SAMPLE = 128  # points per bone used by the blend-band test (speed only)
+
 
 # --------------------------------------------------------------------------------------------
 # result
@@ -229,10 +231,11 @@ def _kmeans(X: np.ndarray, k: int, iters: int, rng: np.random.Generator) -> np.n
         if it > 0 and np.array_equal(new, labels):
             break
         labels = new
-        for c in range(k):
-            sel = labels == c
-            if sel.any():
-                centers[c] = X[sel].mean(0)
+        cnt = np.bincount(labels, minlength=k)
+        order = np.argsort(labels, kind="stable")
+        starts = np.concatenate([[0], np.cumsum(cnt)[:-1]])
+        nz = cnt > 0
+        centers[nz] = np.add.reduceat(X[order], starts[nz], axis=0) / cnt[nz, None]
     return labels
 
 
@@ -359,56 +362,54 @@ def _merge_stat(R: np.ndarray, pairs: list[tuple[int, int]], pct: float,
     return np.degrees(stat)
 
 
-def _merge_similar(ctx: _Ctx, labels: np.ndarray, extra_pairs: list[tuple[int, int]],
-                   diag: dict[str, Any]) -> tuple[np.ndarray, bool]:
-    """Greedily merge the touching (or tree-adjacent) pair with the smallest relative rotation
-    while it is below ``merge_angle_deg``; absorb clusters smaller than
-    ``min_cluster_fraction * M`` into their best Eq. 15 neighbour."""
+def _merge_batch(ctx: _Ctx, labels: np.ndarray, extra_pairs: list[tuple[int, int]],
+                 diag: dict[str, Any]) -> tuple[np.ndarray, bool]:
+    """One batch of §5.4 merges; returns (labels, changed).
+
+    If some clusters hold fewer than ``min_cluster_fraction * M`` points, each is absorbed into
+    its touching neighbour with the smallest Eq. 15 weight. Otherwise the touching (or
+    ``extra_pairs``) bone pairs whose relative-rotation statistic (:func:`_merge_stat`) is below
+    ``merge_angle_deg`` are merged, smallest first, at most one merge per bone per batch, so
+    that the caller can re-run the clustering rounds (boundaries move) before the next batch.
+    """
     cfg = ctx.cfg
-    changed = False
     labels, B = _compact(labels)
-    extra = {(min(a, b), max(a, b)) for a, b in extra_pairs}
-    while B > 1:
-        R, T, counts = ctx.fit(labels, B)
-        pairs = sorted(set(_touch_pairs(ctx, labels, cfg.touch_min_pairs)) | extra)
-        # tiny clusters first
-        small = np.flatnonzero(counts < cfg.min_cluster_fraction * ctx.M)
-        if small.size:
-            s = int(small[np.argmin(counts[small])])
+    if B < 2:
+        return labels, False
+    R, T, counts = ctx.fit(labels, B)
+    pairs = sorted(set(_touch_pairs(ctx, labels, cfg.touch_min_pairs))
+                   | {(min(a, b), max(a, b)) for a, b in extra_pairs})
+    target = np.arange(B)
+    small = np.flatnonzero(counts < cfg.min_cluster_fraction * ctx.M)
+    if small.size:
+        for s in small[np.argsort(counts[small])]:
+            s = int(s)
             nbrs = [j if i == s else i for i, j in pairs if s in (i, j)]
+            nbrs = [j for j in nbrs if j not in small] or [j for j in range(B)
+                                                         if j != s and j not in small]
             if not nbrs:
-                nbrs = [j for j in range(B) if j != s]
+                continue
             w = eq15_weights(ctx.Q, ctx.Y, labels, R, T, np.array([(s, j) for j in nbrs]))
-            tgt = int(nbrs[int(np.argmin(w))])
+            target[s] = int(nbrs[int(np.argmin(w))])
             diag.setdefault("absorbed", []).append(int(counts[s]))
-        else:
-            if not pairs:
+    elif pairs:
+        own = _core.cluster_residuals(ctx.Q, ctx.Y, R, T,
+                                      np.ascontiguousarray(labels[:, None]))[:, 0]
+        nv = rotation_noise_var(ctx.Q, labels, own, B, ctx.F)
+        stat = _merge_stat(R, pairs, cfg.merge_percentile, nv, cfg.noise_margin)
+        used: set[int] = set()
+        for idx in np.argsort(stat, kind="stable"):
+            if stat[idx] >= cfg.merge_angle_deg:
                 break
-            own = _core.cluster_residuals(ctx.Q, ctx.Y, R, T,
-                                          np.ascontiguousarray(labels[:, None]))[:, 0]
-            nv = rotation_noise_var(ctx.Q, labels, own, B, ctx.F)
-            stat = _merge_stat(R, pairs, cfg.merge_percentile, nv, cfg.noise_margin)
-            best = int(np.argmin(stat))
-            if stat[best] >= cfg.merge_angle_deg:
-                break
-            s, tgt = pairs[best]
-            diag.setdefault("merges_deg", []).append(round(float(stat[best]), 3))
-        labels = np.where(labels == s, tgt, labels)
-        # keep the extra (tree) pairs meaningful under relabelling
-        extra = {(min(tgt if a == s else a, tgt if b == s else b),
-                  max(tgt if a == s else a, tgt if b == s else b)) for a, b in extra}
-        extra = {(a, b) for a, b in extra if a != b}
-        labels, B, extra = _compact_with_pairs(labels, extra)
-        changed = True
-    return labels, changed
-
-
-def _compact_with_pairs(labels: np.ndarray, pairs: set[tuple[int, int]]):
-    uniq, inv = np.unique(labels, return_inverse=True)
-    remap = {int(u): i for i, u in enumerate(uniq)}
-    new = {(min(remap[a], remap[b]), max(remap[a], remap[b])) for a, b in pairs
-           if a in remap and b in remap}
-    return inv.astype(np.int64), len(uniq), new
+            i, j = pairs[idx]
+            if i in used or j in used:
+                continue
+            used |= {i, j}
+            target[j] = i
+            diag.setdefault("merges_deg", []).append(round(float(stat[idx]), 3))
+    if np.array_equal(target, np.arange(B)):
+        return labels, False
+    return target[labels], True
 
 
 def _closest_pair(ctx: _Ctx, labels: np.ndarray, i: int, j: int) -> tuple[float, np.ndarray]:
@@ -494,8 +495,8 @@ def _blend_fit(q: np.ndarray, y: np.ndarray, R: np.ndarray, T: np.ndarray, a: in
                ) -> tuple[float, np.ndarray]:
     """Per-point LBS blend of bones ``a`` and ``b``: ``y ~ (1-w) x_a + w x_b`` with one
     ``w in [0, 1]`` per point for all frames (closed form). Returns (residual m^2, w (n,))."""
-    xa = np.einsum("fij,mj->fmi", R[:, a], q) + T[:, a, None]
-    xb = np.einsum("fij,mj->fmi", R[:, b], q) + T[:, b, None]
+    xa = q[None] @ R[:, a].transpose(0, 2, 1) + T[:, a, None]
+    xb = q[None] @ R[:, b].transpose(0, 2, 1) + T[:, b, None]
     d, r = xb - xa, y - xa
     den = (d * d).sum((0, 2))
     w = np.clip((r * d).sum((0, 2)) / np.maximum(den, 1e-300), 0.0, 1.0)
@@ -509,8 +510,11 @@ def _prune(ctx: _Ctx, labels: np.ndarray, parent: np.ndarray, joints: np.ndarray
 
     * spurious leaf: a leaf whose parent has another child and which holds fewer than
       ``leaf_min_fraction * M`` points -> merged into its parent;
+    * blend band: see ``StructureConfig.band_ratio`` (pairs among its tree and touching
+      neighbours) -> its points go to the nearer side;
     * close joints: a non-root bone with children whose head joint and every child joint lie
-      within ``short_bone_ratio * rms_radius`` -> its joints are merged: the bone is removed and
+      within ``short_bone_ratio`` times the bone's own extent (95th percentile distance of its
+      points from their centroid) -> its joints are merged: the bone is removed and
       each of its points goes to the parent or a child, whichever fits best (Eq. 14 residual).
     """
     cfg = ctx.cfg
@@ -526,37 +530,43 @@ def _prune(ctx: _Ctx, labels: np.ndarray, parent: np.ndarray, joints: np.ndarray
     # blend bands: bones explained by per-point blending of two tree neighbours
     R, T, _c = ctx.fit(labels, B)
     bands = []
+    touching = _touch_pairs(ctx, labels, cfg.touch_min_pairs)
     for b in range(B):
-        nb = ([int(parent[b])] if parent[b] >= 0 else []) + [int(c) for c in children[b]]
+        nb = {int(c) for c in children[b]} | ({int(parent[b])} if parent[b] >= 0 else set())
+        nb |= {j if i == b else i for i, j in touching if b in (i, j)}
+        nb = sorted(nb)
         if len(nb) < 2 or cfg.band_ratio <= 0:
             continue
         sel = np.flatnonzero(labels == b)
-        q, y = ctx.Q[sel], ctx.Y[:, sel]
-        own = ((y - np.einsum("fij,mj->fmi", R[:, b], q) - T[:, b, None]) ** 2).sum()
+        sub = sel[:: max(1, len(sel) // _BAND_SAMPLE)]  # deterministic subsample, for speed
+        q, y = ctx.Q[sub], ctx.Y[:, sub]
+        own = ((y - q[None] @ R[:, b].transpose(0, 2, 1) - T[:, b, None]) ** 2).sum()
         for ia in range(len(nb)):
             for ib in range(ia + 1, len(nb)):
                 res, w = _blend_fit(q, y, R, T, nb[ia], nb[ib])
                 # compare residual variances per degree of freedom: the rigid fit spends 6
                 # per frame, the blend one per point
-                n = len(sel)
+                n = len(sub)
                 ratio = (res / max(ctx.F * 3 * n - n, 1)) / max(
                     own / max(ctx.F * (3 * n - 6), 1), 1e-300)
                 if ratio <= cfg.band_ratio:
                     bands.append((ratio, b, nb[ia], nb[ib], sel, w))
     if bands:
-        ratio, b, a, c, sel, w = min(bands, key=lambda x: x[0])
+        ratio, b, a, c, sel, _w = min(bands, key=lambda x: x[0])
+        _res, w = _blend_fit(ctx.Q[sel], ctx.Y[:, sel], R, T, a, c)
         new = labels.copy()
         new[sel] = np.where(w < 0.5, a, c)
         diag.setdefault("bands_removed", []).append(round(float(ratio), 4))
         return new
-    thr = cfg.short_bone_ratio * ctx.rms_radius
     short = []
     for b in range(B):
         if parent[b] < 0 or len(children[b]) == 0:
             continue
+        qb = ctx.Q[labels == b]
+        extent = float(np.percentile(np.linalg.norm(qb - qb.mean(0), axis=1), 95))
         span = max(float(np.linalg.norm(joints[c] - joints[b])) for c in children[b])
-        if span < thr:
-            short.append((span, b))
+        if span < cfg.short_bone_ratio * extent:
+            short.append((span / max(extent, 1e-300), b))
     if short:
         span, b = min(short)
         cand_bones = [int(parent[b])] + [int(c) for c in children[b]]
@@ -568,7 +578,7 @@ def _prune(ctx: _Ctx, labels: np.ndarray, parent: np.ndarray, joints: np.ndarray
                                       np.ascontiguousarray(cand))
         new = labels.copy()
         new[sel] = np.array(cand_bones)[res.argmin(1)]
-        diag.setdefault("short_bones_removed", []).append(round(span / ctx.rms_radius, 4))
+        diag.setdefault("short_bones_removed", []).append(round(span, 4))
         return new
     return None
 
@@ -635,10 +645,12 @@ def extract_structure(rest_points: np.ndarray, points: np.ndarray,
     tree_pairs: list[tuple[int, int]] = []
     passes = 0
     for passes in range(1, cfg.refine_passes + 1):
-        labels, merged = _merge_similar(ctx, labels, tree_pairs, diag)
-        if merged:
+        for _batch in range(ctx.M):
+            labels, merged = _merge_batch(ctx, labels, tree_pairs, diag)
+            tree_pairs = []
+            if not merged:
+                break
             labels = _cluster_rounds(ctx, labels, cfg.post_merge_rounds)
-            labels, _m2 = _merge_similar(ctx, labels, [], diag)
         labels, B = _compact(labels)
         R, T, counts = ctx.fit(labels, B)
         parent, root, bridges = _build_tree(ctx, labels, B, R, T, diag)
