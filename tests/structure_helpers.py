@@ -62,8 +62,8 @@ def make_figure(kind: str) -> Figure:
     if kind == "humanoid_raised":  # left arm raised beside the head (occlusion test)
         fig = make_figure("humanoid")
         i, j = fig.names.index("l_upper"), fig.names.index("l_fore")
-        fig.a[i], fig.b[i] = (0.17, 1.42, 0), (0.18, 1.74, 0)
-        fig.a[j], fig.b[j] = (0.18, 1.74, 0), (0.19, 1.98, 0)
+        fig.a[i], fig.b[i] = (0.19, 1.42, 0), (0.20, 1.74, 0)
+        fig.a[j], fig.b[j] = (0.20, 1.74, 0), (0.21, 1.98, 0)
         fig.hinge[j] = X
         return fig
     if kind == "arm":

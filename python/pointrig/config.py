@@ -94,10 +94,14 @@ class StructureConfig:
 
     # --- bone graph (§5.3) ---
     touch_min_pairs: int = 3  # two bones touch if >= this many neighbour pairs straddle them
+    # for the bone-graph edges only neighbours within graph_radius_ratio * median
+    # nearest-neighbour spacing count (a gap of a few spacings = not touching -> bridge)
+    graph_radius_ratio: float = 2.0
     # bridge edges between disconnected parts of the touching graph cost
-    # RMS_t |(R_i^t - R_j^t) c + T_i^t - T_j^t| (joint dislocation at the gap midpoint c, Eq. 20
-    # residual) + bridge_gap_weight * gap (metres both)
-    bridge_gap_weight: float = 1.0
+    # RMS_t |(R_i^t - R_j^t) c + T_i^t - T_j^t| at the Eq. 20 joint c of the pair (pulled towards
+    # the gap midpoint with relative weight bridge_joint_prior) + bridge_gap_weight * gap (metres)
+    bridge_joint_prior: float = 0.05
+    bridge_gap_weight: float = 0.1  # distance is a weak prior: occluded gaps can be wide
 
     # --- refinement (§5.4) ---
     # two bones are one if the merge_percentile-th percentile over frames of the angle of their

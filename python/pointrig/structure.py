@@ -200,6 +200,9 @@ class _Ctx:
         dist, idx = dist[:, 1:], idx[:, 1:]  # drop self
         radius = cfg.vote_radius_ratio * float(np.median(dist[:, -1])) if dist.size else 0.0
         self.nbr = np.where(dist <= radius, idx, -1)  # (M, k) neighbours inside the ball
+        # stricter neighbourhood for the bone-graph edges (§5.3): a few point spacings
+        spacing = float(np.median(dist[:, 0])) if dist.size else 0.0
+        self.nbr_graph = np.where(dist <= cfg.graph_radius_ratio * spacing, idx, -1)
         self.radius = radius
         self.centroid = Q.mean(axis=0)
         self.rms_radius = float(np.sqrt(((Q - self.centroid) ** 2).sum(1).mean()))
@@ -302,10 +305,13 @@ def _cluster_rounds(ctx: _Ctx, labels: np.ndarray, rounds: int) -> np.ndarray:
     return labels
 
 
-def _touch_pairs(ctx: _Ctx, labels: np.ndarray, min_pairs: int) -> dict[tuple[int, int], int]:
-    """Bone pairs that touch in the rest pose -> number of straddling neighbour pairs."""
-    rows = np.repeat(np.arange(ctx.M), ctx.nbr.shape[1])
-    cols = ctx.nbr.ravel()
+def _touch_pairs(ctx: _Ctx, labels: np.ndarray, min_pairs: int,
+                 strict: bool = False) -> dict[tuple[int, int], int]:
+    """Bone pairs that touch in the rest pose -> number of straddling neighbour pairs
+    (``strict``: only neighbours within ``graph_radius_ratio`` point spacings)."""
+    nbr = ctx.nbr_graph if strict else ctx.nbr
+    rows = np.repeat(np.arange(ctx.M), nbr.shape[1])
+    cols = nbr.ravel()
     ok = cols >= 0
     a, b = labels[rows[ok]], labels[cols[ok]]
     diff = a != b
@@ -419,9 +425,27 @@ def _closest_pair(ctx: _Ctx, labels: np.ndarray, i: int, j: int) -> tuple[float,
     return float(d[a]), 0.5 * (Pi[a] + Pj[idx[a]])
 
 
-def _dislocation(R: np.ndarray, T: np.ndarray, i: int, j: int, c: np.ndarray) -> float:
-    """RMS over frames of |(R_i^t - R_j^t) c + T_i^t - T_j^t| (Eq. 20 residual at ``c``), m."""
-    d = np.einsum("fab,b->fa", R[:, i] - R[:, j], c) + T[:, i] - T[:, j]
+def _dislocation(R: np.ndarray, T: np.ndarray, i: int, j: int, c0: np.ndarray,
+                 prior: float) -> float:
+    """Joint dislocation of a candidate bridge, metres.
+
+    Solves Eq. 20 for the pair with a weak pull to the gap midpoint ``c0``:
+    ``min_c sum_t |A_t c + b_t|^2 + prior * (sum_t |A_t|_F^2 / 3) |c - c0|^2`` with
+    ``A_t = R_i^t - R_j^t``, ``b_t = T_i^t - T_j^t``, and returns the RMS over frames of the
+    residual dislocation ``|A_t c + b_t|`` at that joint: ~0 for two bones that really share a
+    joint (wherever it lies in the occluded gap), large for bones moving independently.
+    """
+    A = R[:, i] - R[:, j]
+    b = T[:, i] - T[:, j]
+    F = R.shape[0]
+    lam = prior * F * float((A ** 2).sum(axis=(1, 2)).mean()) / 3.0 + 1e-12
+    lhs = np.einsum("fji,fjk->ik", A, A) + lam * np.eye(3)
+    rhs = lam * c0 - np.einsum("fji,fj->i", A, b)
+    try:
+        c = np.linalg.solve(lhs, rhs)
+    except np.linalg.LinAlgError:
+        c = c0
+    d = np.einsum("fab,b->fa", A, c) + b
     return float(np.sqrt((d ** 2).sum(1).mean()))
 
 
@@ -430,7 +454,7 @@ def _build_tree(ctx: _Ctx, labels: np.ndarray, B: int, R: np.ndarray, T: np.ndar
     """MST of the touching graph with Eq. 15 weights, bridged by motion + distance; rooted at
     the bone whose centre is nearest the rest-pose centroid. Returns (parent, root, bridges)."""
     cfg = ctx.cfg
-    touch = sorted(_touch_pairs(ctx, labels, cfg.touch_min_pairs))
+    touch = sorted(_touch_pairs(ctx, labels, cfg.touch_min_pairs, strict=True))
     G = nx.Graph()
     G.add_nodes_from(range(B))
     if touch:
@@ -452,7 +476,7 @@ def _build_tree(ctx: _Ctx, labels: np.ndarray, B: int, R: np.ndarray, T: np.ndar
                 if ci == cj:
                     continue
                 gap, mid = _closest_pair(ctx, labels, i, j)
-                cost = _dislocation(R, T, i, j, mid) + cfg.bridge_gap_weight * gap
+                cost = _dislocation(R, T, i, j, mid, cfg.bridge_joint_prior) + cfg.bridge_gap_weight * gap
                 key = (min(ci, cj), max(ci, cj))
                 if not H.has_edge(*key) or cost < H.edges[key]["weight"]:
                     H.add_edge(*key, weight=cost, bones=(i, j))
