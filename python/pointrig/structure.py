@@ -34,10 +34,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import networkx as nx
 import numpy as np
-from scipy.spatial import cKDTree
-from scipy.stats import chi
 
 from . import _core
 from .config import StructureConfig
@@ -192,6 +189,8 @@ class _Ctx:
     """Per-call constants: data, neighbourhoods, scale."""
 
     def __init__(self, Q: np.ndarray, Y: np.ndarray, cfg: StructureConfig):
+        from scipy.spatial import cKDTree
+
         self.Q, self.Y, self.cfg = Q, Y, cfg
         self.M, self.F = Q.shape[0], Y.shape[0]
         self.tree = cKDTree(Q)
@@ -359,6 +358,8 @@ def _merge_stat(R: np.ndarray, pairs: list[tuple[int, int]], pct: float,
     ang = relative_rotation_angles(R, P)
     stat = np.percentile(ang, pct, axis=1)
     if noise_var is not None and margin > 0:
+        from scipy.stats import chi
+
         # a relative rotation made of noise only is ~ isotropic Gaussian in 3 axes:
         # its angle is chi(3)-distributed with E[theta^2] = var_i + var_j
         var = noise_var[P[:, 0]] + noise_var[P[:, 1]]
@@ -419,6 +420,8 @@ def _merge_batch(ctx: _Ctx, labels: np.ndarray, extra_pairs: list[tuple[int, int
 
 
 def _closest_pair(ctx: _Ctx, labels: np.ndarray, i: int, j: int) -> tuple[float, np.ndarray]:
+    from scipy.spatial import cKDTree
+
     Pi, Pj = ctx.Q[labels == i], ctx.Q[labels == j]
     d, idx = cKDTree(Pj).query(Pi, k=1)
     a = int(np.argmin(d))
@@ -453,6 +456,8 @@ def _build_tree(ctx: _Ctx, labels: np.ndarray, B: int, R: np.ndarray, T: np.ndar
                 diag: dict[str, Any]) -> tuple[np.ndarray, int, set[tuple[int, int]]]:
     """MST of the touching graph with Eq. 15 weights, bridged by motion + distance; rooted at
     the bone whose centre is nearest the rest-pose centroid. Returns (parent, root, bridges)."""
+    import networkx as nx
+
     cfg = ctx.cfg
     touch = sorted(_touch_pairs(ctx, labels, cfg.touch_min_pairs, strict=True))
     G = nx.Graph()

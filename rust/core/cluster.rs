@@ -52,13 +52,13 @@ fn m3(s: &[f64], i: usize) -> Matrix3<f64> {
 
 /// Check `rest (M,3)` / `points (F,M,3)` and return `(M, F)`.
 fn dims(rest: &[f64], points: &[f64]) -> CoreResult<(usize, usize)> {
-    if rest.is_empty() || rest.len() % 3 != 0 {
+    if rest.is_empty() || !rest.len().is_multiple_of(3) {
         return Err(CoreError::InvalidInput(
             "rest points must be a non-empty (M, 3) array".into(),
         ));
     }
     let m = rest.len() / 3;
-    if points.is_empty() || points.len() % (3 * m) != 0 {
+    if points.is_empty() || !points.len().is_multiple_of(3 * m) {
         return Err(CoreError::InvalidInput(format!(
             "points must be (F, {m}, 3), got {} values",
             points.len()
@@ -69,7 +69,10 @@ fn dims(rest: &[f64], points: &[f64]) -> CoreResult<(usize, usize)> {
 
 /// Check transforms `(F, K, 3, 3)` / `(F, K, 3)` and return `K`.
 fn n_bones(r: &[f64], t: &[f64], f: usize) -> CoreResult<usize> {
-    if r.len() % (9 * f) != 0 || t.len() % (3 * f) != 0 || r.len() / 9 != t.len() / 3 {
+    if !r.len().is_multiple_of(9 * f)
+        || !t.len().is_multiple_of(3 * f)
+        || r.len() / 9 != t.len() / 3
+    {
         return Err(CoreError::InvalidInput(format!(
             "rotations must be (F={f}, K, 3, 3) and translations (F={f}, K, 3); got {} and {} values",
             r.len(),
@@ -105,7 +108,7 @@ pub fn fit_clusters(
                 w.len()
             )));
         }
-        if w.iter().any(|&x| !(x >= 0.0) || !x.is_finite()) {
+        if w.iter().any(|&x| x.is_nan() || x < 0.0 || !x.is_finite()) {
             return Err(CoreError::InvalidInput(
                 "weights must be finite and non-negative".into(),
             ));
@@ -248,7 +251,7 @@ pub fn swap_residuals(
             labels.len()
         )));
     }
-    if pairs.len() % 2 != 0 || pairs.iter().any(|&p| p < 0 || p >= k as i64) {
+    if !pairs.len().is_multiple_of(2) || pairs.iter().any(|&p| p < 0 || p >= k as i64) {
         return Err(CoreError::InvalidInput(format!(
             "pairs must be (P, 2) bone indices in [0, {k})"
         )));
@@ -289,8 +292,10 @@ mod tests {
     use super::*;
     use nalgebra::Rotation3;
 
+    type Motions = Vec<(Matrix3<f64>, Vector3<f64>)>;
+
     /// Two rigid clusters with known per-frame motions.
-    fn two_parts(f: usize) -> (Vec<f64>, Vec<f64>, Vec<i64>, Vec<(Matrix3<f64>, Vector3<f64>)>) {
+    fn two_parts(f: usize) -> (Vec<f64>, Vec<f64>, Vec<i64>, Motions) {
         let m = 40;
         let mut rest = Vec::new();
         let mut labels = Vec::new();
@@ -378,7 +383,10 @@ mod tests {
         let (rest, pts, labels, truth) = two_parts(3);
         // put every point in cluster 0 but give cluster-1 points zero weight
         let all0 = vec![0i64; labels.len()];
-        let w: Vec<f64> = labels.iter().map(|&l| if l == 0 { 1.0 } else { 0.0 }).collect();
+        let w: Vec<f64> = labels
+            .iter()
+            .map(|&l| if l == 0 { 1.0 } else { 0.0 })
+            .collect();
         let fits = fit_clusters(&rest, &pts, &all0, 1, Some(&w)).unwrap();
         assert_eq!(fits.counts[0], 20);
         assert!((m3(&fits.r, 2) - truth[2 * 2].0).norm() < 1e-9);
