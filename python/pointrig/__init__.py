@@ -29,6 +29,7 @@ from .errors import (
 from .io import read_sequence, write_sequence
 from .sequence import PointSequence
 from .skeleton import Skeleton, load_skeleton_json
+from .structure import StructureResult, extract_structure
 
 __version__: str = _core.__version__
 
@@ -48,7 +49,9 @@ __all__ = [
     "RegistrationConfig",
     "Skeleton",
     "StructureConfig",
+    "StructureResult",
     "TrackingLostError",
+    "extract_structure",
     "load_config",
     "load_skeleton_json",
     "read_sequence",

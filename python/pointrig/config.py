@@ -67,11 +67,67 @@ class RegistrationConfig:
 
 @dataclass(frozen=True)
 class StructureConfig:
-    """Step 2, skeletal structure extraction (§5, Eqs. 14-15)."""
+    """Step 2, skeletal structure extraction (§5, Eqs. 14-15, 20).
 
+    Every threshold is scale-free (a ratio, an angle, a fraction of M or a neighbour count), so
+    the same defaults hold for a hand or a horse and for smooth or noisy registrations; see
+    docs/structure.md for the definitions and the measurements behind them.
+    """
+
+    # --- motion-based clustering (§5.2) ---
     n_clusters: int = 30  # initial k for k-means (§5.2); refinement removes the extra ones
-    cluster_rounds: int = 10  # rounds of fit / relabel / vote (§5.2)
-    seed: int = 0
+    cluster_rounds: int = 10  # rounds of (i) Kabsch fit (Eq. 14), (ii) relabel, (iii) vote (§5.2)
+    seed: int = 0  # k-means++ seeding; the whole step is deterministic given the seed
+    kmeans_iterations: int = 30  # Lloyd iterations of the k-means initialisation
+    # k-means features = [rest position, trajectory_weight * s * displacements (y^t - q)]
+    # with s making both blocks carry the same total variance (0 = rest positions only)
+    trajectory_weight: float = 1.0
+    kmeans_frames: int = 20  # frames (evenly spaced) whose displacements enter the features
+    vote_neighbors: int = 10  # rest-pose neighbours of a point: the "ball" of (iii), the
+    # candidate bones of (ii) and the touching test of §5.3
+    # ball radius of (iii) = vote_radius_ratio * median distance to the vote_neighbors-th neighbour
+    vote_radius_ratio: float = 2.0
+    # the vote (iii) may move a point only to a bone whose residual for that point is at most
+    # vote_guard_ratio times the point's best candidate residual (0 = unguarded vote, as in §5.2)
+    vote_guard_ratio: float = 2.0
+    post_merge_rounds: int = 3  # fit / relabel / vote rounds after each refinement pass
+
+    # --- bone graph (§5.3) ---
+    touch_min_pairs: int = 3  # two bones touch if >= this many neighbour pairs straddle them
+    # for the bone-graph edges only neighbours within graph_radius_ratio * median
+    # nearest-neighbour spacing count (a gap of a few spacings = not touching -> bridge)
+    graph_radius_ratio: float = 2.0
+    # bridge edges between disconnected parts of the touching graph cost
+    # RMS_t |(R_i^t - R_j^t) c + T_i^t - T_j^t| at the Eq. 20 joint c of the pair (pulled towards
+    # the gap midpoint with relative weight bridge_joint_prior) + bridge_gap_weight * gap (metres)
+    bridge_joint_prior: float = 0.05
+    bridge_gap_weight: float = 0.1  # distance is a weak prior: occluded gaps can be wide
+
+    # --- refinement (§5.4) ---
+    # two bones are one if the merge_percentile-th percentile over frames of the angle of their
+    # relative rotation R_i^tT R_j^t stays below merge_angle_deg
+    merge_angle_deg: float = 10.0
+    merge_percentile: float = 95.0
+    # the percentile is first discounted (in quadrature) by noise_margin times the percentile a
+    # noise-only relative rotation would reach, from each bone's Kabsch rotation variance
+    # s^2 tr(J^-1) (own residual s^2, inertia J): only tiny or degenerate patches are affected
+    noise_margin: float = 1.0
+    min_cluster_fraction: float = 0.005  # clusters with fewer than this * M points are absorbed
+    leaf_min_fraction: float = 0.01  # spurious leaf: a leaf at a branching parent with < this * M
+    # blend band: a bone with >= 2 tree neighbours whose trajectories are fitted by a per-point
+    # blend (1-w) x_a + w x_b of two neighbours' motions (one w per point, all frames) with a
+    # residual variance (per degree of freedom) <= band_ratio * that of its own rigid fit is a
+    # skinning transition (e.g. over-smoothed registration near a joint), not a bone
+    band_ratio: float = 1.5
+    # close joints / short bone: a non-root bone with children whose head joint and every child
+    # joint (Eq. 20) lie within short_bone_ratio * its extent (95th percentile distance of its
+    # points from their centroid) spans no length: a ring around one joint -> joints merged,
+    # bone removed (real bones measured >= 1.3, joint rings <= 0.55)
+    short_bone_ratio: float = 0.75
+    refine_passes: int = 25  # maximum rounds of merge / prune / rebuild (one pruning each)
+
+    # --- initial joints (Eq. 20) ---
+    eta: float = 1.0  # boundary-centroid data weight in E_Joint (Eq. 20), Table 1
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,757 @@
+"""Step 2: skeletal structure extraction (paper §5, Eqs. 14, 15 and 20).
+
+From the registered sequence (rest points ``Q (M, 3)`` and their positions ``Y (F, M, 3)`` in
+every frame) build a bone tree without being told the number of bones:
+
+1. **Motion-based clustering** (§5.2). k-means on rest positions concatenated with scaled
+   displacement trajectories gives ``k`` initial clusters; then ``cluster_rounds`` rounds of
+   (i) one rigid transform per cluster and frame by weighted absolute orientation (Kabsch,
+   Eq. 14), (ii) relabel each point by the candidate bone with the smallest residual summed over
+   frames, (iii) majority vote of the labels in a rest-pose ball around each point. The fits and
+   residuals run in the Rust core (``_core.cluster_fit``, ``_core.cluster_residuals``).
+2. **Refinement** (§5.4), made precise (docs/structure.md): bones whose relative rotation never
+   exceeds ``merge_angle_deg`` (``merge_percentile``-th percentile over frames) are merged, tiny
+   clusters are absorbed, spurious leaves at branching joints are pruned, and bones whose joints
+   (Eq. 20) collapse onto one point are removed ("merge joints that are very close").
+3. **Bone graph** (§5.3): bones that touch in the rest pose are linked with the transform-swap
+   weight of Eq. 15 (``_core.swap_residuals``); the minimum spanning tree (networkx) is the
+   skeleton, rooted at the bone whose centre is nearest the rest-pose centroid. A touching graph
+   that is disconnected (occlusion) is bridged by motion (joint dislocation) plus distance.
+   Loops cannot occur: the result is a spanning tree by construction.
+4. **Initial joints**: Eq. 20 in closed form (:func:`pointrig.kinematics.solve_joint_positions`)
+   with the centroid of the boundary points between a bone and its parent as data term.
+
+Conventions (TEAM.md): metres; ``x = R[t, b] @ q + T[t, b]`` (``T_frame_rest``); ``bone_parent``
+``-1`` at the root; joint ``b`` is the head of bone ``b``.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from . import _core
+from .config import StructureConfig
+from .errors import ConfigError, FormatError, InputError
+from .io.atomic import write_npz
+from .kinematics import joint_trajectories, solve_joint_positions
+from .skeleton import Skeleton
+
+__all__ = [
+    "StructureResult",
+    "extract_structure",
+    "to_skeleton",
+    "fit_bones",
+    "eq15_weights",
+    "relative_rotation_angles",
+    "write_structure_outputs",
+]
+
+log = logging.getLogger(__name__)
+
+_BAND_SAMPLE = 128  # points per bone used by the blend-band test (speed only)
+
+
+# --------------------------------------------------------------------------------------------
+# result
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass
+class StructureResult:
+    """Output of step 2.
+
+    Attributes
+    ----------
+    labels
+        ``(M,)`` int64, bone of each rest point, in ``[0, B)``.
+    bone_parent
+        ``(B,)`` int64, parent bone, ``-1`` at the root.
+    R, T
+        ``(F, B, 3, 3)`` rotations and ``(F, B, 3)`` translations (metres), ``T_frame_rest``
+        of each bone (Eq. 14 fit of its points).
+    joints_rest
+        ``(B, 3)`` rest-pose head joint of every bone (root: its centre; others: the Eq. 20
+        joint shared with the parent), metres.
+    c_tilde
+        ``(B, 3)`` boundary centroids between each bone and its parent (root: its centre), m.
+    root
+        Index of the root bone.
+    rest_points
+        ``(M, 3)`` the rest points the labels refer to, metres.
+    diagnostics
+        JSON-able dict: initial k, clusters after clustering, merges done, pruned bones,
+        bridges, per-bone RMS residual (m), timings (s).
+    """
+
+    labels: np.ndarray
+    bone_parent: np.ndarray
+    R: np.ndarray
+    T: np.ndarray
+    joints_rest: np.ndarray
+    c_tilde: np.ndarray
+    root: int
+    rest_points: np.ndarray
+    diagnostics: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def n_bones(self) -> int:
+        """Number of bones ``B``."""
+        return int(self.bone_parent.shape[0])
+
+    def save(self, path: str | Path) -> None:
+        """Write the result to an ``.npz`` file (atomically)."""
+        write_npz(
+            path,
+            labels=self.labels, bone_parent=self.bone_parent, R=self.R, T=self.T,
+            joints_rest=self.joints_rest, c_tilde=self.c_tilde, root=np.int64(self.root),
+            rest_points=self.rest_points,
+            diagnostics=np.array(json.dumps(self.diagnostics, allow_nan=True)),
+        )
+
+    @classmethod
+    def load(cls, path: str | Path) -> StructureResult:
+        """Read a result written by :meth:`save`.
+
+        Raises
+        ------
+        InputError
+            If the file is missing.
+        FormatError
+            If it is not a structure result.
+        """
+        p = Path(path)
+        if not p.exists():
+            raise InputError("file not found", p)
+        try:
+            with np.load(p, allow_pickle=False) as z:
+                return cls(
+                    labels=z["labels"].astype(np.int64), bone_parent=z["bone_parent"].astype(np.int64),
+                    R=z["R"], T=z["T"], joints_rest=z["joints_rest"], c_tilde=z["c_tilde"],
+                    root=int(z["root"]), rest_points=z["rest_points"],
+                    diagnostics=json.loads(str(z["diagnostics"])),
+                )
+        except (KeyError, ValueError, OSError) as exc:
+            raise FormatError(f"{p}: not a pointrig structure result ({exc})") from None
+
+
+# --------------------------------------------------------------------------------------------
+# small public helpers (also used by tests)
+# --------------------------------------------------------------------------------------------
+
+
+def fit_bones(
+    rest_points: np.ndarray, points: np.ndarray, labels: np.ndarray, n_bones: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per bone and frame Kabsch fit (Eq. 14) from the rest points of the bone.
+
+    Returns ``R (F, B, 3, 3)``, ``T (F, B, 3)`` and the point count per bone ``(B,)``.
+    """
+    return _core.cluster_fit(rest_points, points, np.ascontiguousarray(labels, np.int64), n_bones)
+
+
+def eq15_weights(
+    rest_points: np.ndarray, points: np.ndarray, labels: np.ndarray, R: np.ndarray,
+    T: np.ndarray, pairs: np.ndarray,
+) -> np.ndarray:
+    """Edge weights ``e_ij`` of Eq. 15 for bone pairs ``(P, 2)``; returns ``(P,)`` in m^2."""
+    pairs = np.ascontiguousarray(np.asarray(pairs, np.int64).reshape(-1, 2))
+    if len(pairs) == 0:
+        return np.zeros(0)
+    halves = _core.swap_residuals(rest_points, points, np.ascontiguousarray(labels, np.int64),
+                                  R, T, pairs)
+    return halves.sum(axis=1)
+
+
+def relative_rotation_angles(R: np.ndarray, pairs: np.ndarray) -> np.ndarray:
+    """Angle (radians) of the relative rotation ``R_i^tT R_j^t`` per pair and frame, ``(P, F)``.
+
+    The rest pose is the reference: every bone's rotation is the identity there, so this is the
+    rotation of bone ``j`` against bone ``i`` away from the rest pose.
+    """
+    pairs = np.asarray(pairs, np.int64).reshape(-1, 2)
+    tr = np.einsum("fpij,fpij->pf", R[:, pairs[:, 0]], R[:, pairs[:, 1]])
+    return np.arccos(np.clip(0.5 * (tr - 1.0), -1.0, 1.0))
+
+
+# --------------------------------------------------------------------------------------------
+# internals
+# --------------------------------------------------------------------------------------------
+
+
+class _Ctx:
+    """Per-call constants: data, neighbourhoods, scale."""
+
+    def __init__(self, Q: np.ndarray, Y: np.ndarray, cfg: StructureConfig):
+        from scipy.spatial import cKDTree
+
+        self.Q, self.Y, self.cfg = Q, Y, cfg
+        self.M, self.F = Q.shape[0], Y.shape[0]
+        self.tree = cKDTree(Q)
+        kn = min(cfg.vote_neighbors + 1, self.M)
+        dist, idx = self.tree.query(Q, k=kn)
+        dist, idx = dist[:, 1:], idx[:, 1:]  # drop self
+        radius = cfg.vote_radius_ratio * float(np.median(dist[:, -1])) if dist.size else 0.0
+        self.nbr = np.where(dist <= radius, idx, -1)  # (M, k) neighbours inside the ball
+        # stricter neighbourhood for the bone-graph edges (§5.3): a few point spacings
+        spacing = float(np.median(dist[:, 0])) if dist.size else 0.0
+        self.nbr_graph = np.where(dist <= cfg.graph_radius_ratio * spacing, idx, -1)
+        self.radius = radius
+        self.centroid = Q.mean(axis=0)
+        self.rms_radius = float(np.sqrt(((Q - self.centroid) ** 2).sum(1).mean()))
+
+    def fit(self, labels: np.ndarray, B: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return fit_bones(self.Q, self.Y, labels, B)
+
+
+def _compact(labels: np.ndarray) -> tuple[np.ndarray, int]:
+    uniq, inv = np.unique(labels, return_inverse=True)
+    return inv.astype(np.int64), len(uniq)
+
+
+def _kmeans(X: np.ndarray, k: int, iters: int, rng: np.random.Generator) -> np.ndarray:
+    """k-means++ seeding then Lloyd iterations; deterministic given ``rng``."""
+    n = X.shape[0]
+    centers = np.empty((k, X.shape[1]))
+    centers[0] = X[rng.integers(n)]
+    d2 = ((X - centers[0]) ** 2).sum(1)
+    for c in range(1, k):
+        p = d2 / d2.sum() if d2.sum() > 0 else np.full(n, 1.0 / n)
+        centers[c] = X[rng.choice(n, p=p)]
+        d2 = np.minimum(d2, ((X - centers[c]) ** 2).sum(1))
+    labels = np.zeros(n, np.int64)
+    xx = (X ** 2).sum(1)[:, None]
+    for it in range(iters):
+        dist = xx - 2.0 * X @ centers.T + (centers ** 2).sum(1)[None, :]
+        new = dist.argmin(1)
+        if it > 0 and np.array_equal(new, labels):
+            break
+        labels = new
+        cnt = np.bincount(labels, minlength=k)
+        order = np.argsort(labels, kind="stable")
+        starts = np.concatenate([[0], np.cumsum(cnt)[:-1]])
+        nz = cnt > 0
+        centers[nz] = np.add.reduceat(X[order], starts[nz], axis=0) / cnt[nz, None]
+    return labels
+
+
+def kmeans_features(Q: np.ndarray, Y: np.ndarray, cfg: StructureConfig) -> np.ndarray:
+    """k-means features: rest position and scaled displacement trajectories, ``(M, 3 + 3 F')``.
+
+    Both blocks are scaled to the same total variance, then the trajectory block is multiplied
+    by ``cfg.trajectory_weight`` (0 = positions only).
+    """
+    Qc = Q - Q.mean(0)
+    if cfg.trajectory_weight <= 0 or Y.shape[0] < 2:
+        return Qc
+    nf = min(cfg.kmeans_frames, Y.shape[0])
+    frames = np.unique(np.linspace(0, Y.shape[0] - 1, nf).round().astype(int))
+    D = (Y[frames] - Q[None]).transpose(1, 0, 2).reshape(Q.shape[0], -1)
+    D = D - D.mean(0)
+    vq, vd = (Qc ** 2).sum(), (D ** 2).sum()
+    if vd <= 1e-12 * max(vq, 1e-30):
+        return Qc
+    return np.hstack([Qc, cfg.trajectory_weight * np.sqrt(vq / vd) * D])
+
+
+def _candidates(ctx: _Ctx, labels: np.ndarray) -> np.ndarray:
+    """Candidate bones per point: own label and labels of rest-pose neighbours, ``(M, C)``."""
+    nl = np.where(ctx.nbr >= 0, labels[np.maximum(ctx.nbr, 0)], -1)
+    cand = np.sort(np.hstack([labels[:, None], nl]), axis=1)
+    dup = np.zeros_like(cand, dtype=bool)
+    dup[:, 1:] = cand[:, 1:] == cand[:, :-1]
+    cand[dup] = -1
+    return np.ascontiguousarray(cand)
+
+
+def _vote(ctx: _Ctx, labels: np.ndarray) -> np.ndarray:
+    """Step (iii): majority label in the rest-pose ball (ties keep the current label)."""
+    nl = np.where(ctx.nbr >= 0, labels[np.maximum(ctx.nbr, 0)], -1)
+    allv = np.hstack([labels[:, None], nl])  # (M, 1 + k)
+    counts = (allv[:, :, None] == allv[:, None, :]).sum(2).astype(float)
+    counts[allv < 0] = -1
+    counts[:, 0] += 0.5  # tie-break towards the own label
+    return allv[np.arange(len(labels)), counts.argmax(1)]
+
+
+def _cluster_rounds(ctx: _Ctx, labels: np.ndarray, rounds: int) -> np.ndarray:
+    """``rounds`` iterations of (i) fit, (ii) relabel among candidates, (iii) vote (§5.2)."""
+    labels, B = _compact(labels)
+    for _ in range(rounds):
+        R, T, _c = ctx.fit(labels, B)
+        cand = _candidates(ctx, labels)
+        res = _core.cluster_residuals(ctx.Q, ctx.Y, R, T, cand)
+        new = cand[np.arange(ctx.M), res.argmin(1)]
+        # (iii) majority vote in the rest-pose ball, guarded by the motion evidence: a point
+        # takes the voted bone only if that bone is one of its candidates with a residual of
+        # at most vote_guard_ratio times its best one (otherwise thin parts are voted away)
+        voted = _vote(ctx, new)
+        if ctx.cfg.vote_guard_ratio > 0:
+            rv = np.where(cand == voted[:, None], res, np.inf).min(1)
+            new = np.where(rv <= ctx.cfg.vote_guard_ratio * res.min(1), voted, new)
+        else:
+            new = voted
+        new, B = _compact(new)
+        if np.array_equal(new, labels):
+            break
+        labels = new
+    return labels
+
+
+def _touch_pairs(ctx: _Ctx, labels: np.ndarray, min_pairs: int,
+                 strict: bool = False) -> dict[tuple[int, int], int]:
+    """Bone pairs that touch in the rest pose -> number of straddling neighbour pairs
+    (``strict``: only neighbours within ``graph_radius_ratio`` point spacings)."""
+    nbr = ctx.nbr_graph if strict else ctx.nbr
+    rows = np.repeat(np.arange(ctx.M), nbr.shape[1])
+    cols = nbr.ravel()
+    ok = cols >= 0
+    a, b = labels[rows[ok]], labels[cols[ok]]
+    diff = a != b
+    lo, hi = np.minimum(a[diff], b[diff]), np.maximum(a[diff], b[diff])
+    if lo.size == 0:
+        return {}
+    keys, cnt = np.unique(np.stack([lo, hi], 1), axis=0, return_counts=True)
+    return {(int(i), int(j)): int(c) for (i, j), c in zip(keys, cnt) if c >= min_pairs}
+
+
+def rotation_noise_var(Q: np.ndarray, labels: np.ndarray, own_res: np.ndarray, B: int,
+                       n_frames: int) -> np.ndarray:
+    """Expected squared angle (rad^2) of the Kabsch rotation noise of each bone, ``(B,)``.
+
+    For ``n`` points with isotropic residual variance ``s^2`` per coordinate, the linearised
+    rotation error of Eq. 14 has covariance ``s^2 J^-1`` with ``J = sum |q~|^2 I - q~ q~^T`` (the
+    inertia tensor of the centred rest points), so ``E[theta^2] = s^2 tr(J^-1)``. ``s^2`` is the
+    bone's own residual per coordinate and frame (6 degrees of freedom removed per frame).
+    Large, well-spread bones get ~0; tiny or degenerate (collinear) patches get a large value.
+    """
+    out = np.full(B, np.inf)
+    for b in range(B):
+        sel = labels == b
+        n = int(sel.sum())
+        if n < 3:
+            continue
+        qc = Q[sel] - Q[sel].mean(0)
+        J = (qc ** 2).sum() * np.eye(3) - qc.T @ qc
+        ev = np.linalg.eigvalsh(J)
+        if ev[0] <= 1e-12 * max(ev[-1], 1e-300):
+            continue
+        s2 = own_res[sel].sum() / max(n_frames * (3 * n - 6), 1)
+        out[b] = s2 * float((1.0 / ev).sum())
+    return out
+
+
+def _merge_stat(R: np.ndarray, pairs: list[tuple[int, int]], pct: float,
+                noise_var: np.ndarray | None = None, margin: float = 1.0) -> np.ndarray:
+    """Relative-rotation statistic (degrees) per pair: the ``pct``-th percentile over frames of
+    the angle of ``R_i^tT R_j^t``, minus (in quadrature) the same percentile expected from the
+    Kabsch noise of the two bones alone (``margin`` times it)."""
+    if not pairs:
+        return np.zeros(0)
+    P = np.array(pairs)
+    ang = relative_rotation_angles(R, P)
+    stat = np.percentile(ang, pct, axis=1)
+    if noise_var is not None and margin > 0:
+        from scipy.stats import chi
+
+        # a relative rotation made of noise only is ~ isotropic Gaussian in 3 axes:
+        # its angle is chi(3)-distributed with E[theta^2] = var_i + var_j
+        var = noise_var[P[:, 0]] + noise_var[P[:, 1]]
+        q = chi.ppf(pct / 100.0, 3) / np.sqrt(3.0)
+        noise = margin * q * np.sqrt(var)
+        stat = np.sqrt(np.maximum(stat ** 2 - noise ** 2, 0.0))
+    return np.degrees(stat)
+
+
+def _merge_batch(ctx: _Ctx, labels: np.ndarray, extra_pairs: list[tuple[int, int]],
+                 diag: dict[str, Any]) -> tuple[np.ndarray, bool]:
+    """One batch of §5.4 merges; returns (labels, changed).
+
+    If some clusters hold fewer than ``min_cluster_fraction * M`` points, each is absorbed into
+    its touching neighbour with the smallest Eq. 15 weight. Otherwise the touching (or
+    ``extra_pairs``) bone pairs whose relative-rotation statistic (:func:`_merge_stat`) is below
+    ``merge_angle_deg`` are merged, smallest first, at most one merge per bone per batch, so
+    that the caller can re-run the clustering rounds (boundaries move) before the next batch.
+    """
+    cfg = ctx.cfg
+    labels, B = _compact(labels)
+    if B < 2:
+        return labels, False
+    R, T, counts = ctx.fit(labels, B)
+    pairs = sorted(set(_touch_pairs(ctx, labels, cfg.touch_min_pairs))
+                   | {(min(a, b), max(a, b)) for a, b in extra_pairs})
+    target = np.arange(B)
+    small = np.flatnonzero(counts < cfg.min_cluster_fraction * ctx.M)
+    if small.size:
+        for s in small[np.argsort(counts[small])]:
+            s = int(s)
+            nbrs = [j if i == s else i for i, j in pairs if s in (i, j)]
+            nbrs = [j for j in nbrs if j not in small] or [j for j in range(B)
+                                                         if j != s and j not in small]
+            if not nbrs:
+                continue
+            w = eq15_weights(ctx.Q, ctx.Y, labels, R, T, np.array([(s, j) for j in nbrs]))
+            target[s] = int(nbrs[int(np.argmin(w))])
+            diag.setdefault("absorbed", []).append(int(counts[s]))
+    elif pairs:
+        own = _core.cluster_residuals(ctx.Q, ctx.Y, R, T,
+                                      np.ascontiguousarray(labels[:, None]))[:, 0]
+        nv = rotation_noise_var(ctx.Q, labels, own, B, ctx.F)
+        stat = _merge_stat(R, pairs, cfg.merge_percentile, nv, cfg.noise_margin)
+        used: set[int] = set()
+        for idx in np.argsort(stat, kind="stable"):
+            if stat[idx] >= cfg.merge_angle_deg:
+                break
+            i, j = pairs[idx]
+            if i in used or j in used:
+                continue
+            used |= {i, j}
+            target[j] = i
+            diag.setdefault("merges_deg", []).append(round(float(stat[idx]), 3))
+    if np.array_equal(target, np.arange(B)):
+        return labels, False
+    return target[labels], True
+
+
+def _closest_pair(ctx: _Ctx, labels: np.ndarray, i: int, j: int) -> tuple[float, np.ndarray]:
+    from scipy.spatial import cKDTree
+
+    Pi, Pj = ctx.Q[labels == i], ctx.Q[labels == j]
+    d, idx = cKDTree(Pj).query(Pi, k=1)
+    a = int(np.argmin(d))
+    return float(d[a]), 0.5 * (Pi[a] + Pj[idx[a]])
+
+
+def _dislocation(R: np.ndarray, T: np.ndarray, i: int, j: int, c0: np.ndarray,
+                 prior: float) -> float:
+    """Joint dislocation of a candidate bridge, metres.
+
+    Solves Eq. 20 for the pair with a weak pull to the gap midpoint ``c0``:
+    ``min_c sum_t |A_t c + b_t|^2 + prior * (sum_t |A_t|_F^2 / 3) |c - c0|^2`` with
+    ``A_t = R_i^t - R_j^t``, ``b_t = T_i^t - T_j^t``, and returns the RMS over frames of the
+    residual dislocation ``|A_t c + b_t|`` at that joint: ~0 for two bones that really share a
+    joint (wherever it lies in the occluded gap), large for bones moving independently.
+    """
+    A = R[:, i] - R[:, j]
+    b = T[:, i] - T[:, j]
+    F = R.shape[0]
+    lam = prior * F * float((A ** 2).sum(axis=(1, 2)).mean()) / 3.0 + 1e-12
+    lhs = np.einsum("fji,fjk->ik", A, A) + lam * np.eye(3)
+    rhs = lam * c0 - np.einsum("fji,fj->i", A, b)
+    try:
+        c = np.linalg.solve(lhs, rhs)
+    except np.linalg.LinAlgError:
+        c = c0
+    d = np.einsum("fab,b->fa", A, c) + b
+    return float(np.sqrt((d ** 2).sum(1).mean()))
+
+
+def _build_tree(ctx: _Ctx, labels: np.ndarray, B: int, R: np.ndarray, T: np.ndarray,
+                diag: dict[str, Any]) -> tuple[np.ndarray, int, set[tuple[int, int]]]:
+    """MST of the touching graph with Eq. 15 weights, bridged by motion + distance; rooted at
+    the bone whose centre is nearest the rest-pose centroid. Returns (parent, root, bridges)."""
+    import networkx as nx
+
+    cfg = ctx.cfg
+    touch = sorted(_touch_pairs(ctx, labels, cfg.touch_min_pairs, strict=True))
+    G = nx.Graph()
+    G.add_nodes_from(range(B))
+    if touch:
+        w = eq15_weights(ctx.Q, ctx.Y, labels, R, T, np.array(touch))
+        for (i, j), wij in zip(touch, w):
+            G.add_edge(i, j, weight=float(wij))
+    forest = nx.minimum_spanning_tree(G, weight="weight", algorithm="kruskal")
+    comps = [sorted(c) for c in nx.connected_components(forest)]
+    bridges: set[tuple[int, int]] = set()
+    if len(comps) > 1:
+        comp_of = np.empty(B, np.int64)
+        for ci, c in enumerate(comps):
+            comp_of[c] = ci
+        H = nx.Graph()
+        H.add_nodes_from(range(len(comps)))
+        for i in range(B):
+            for j in range(i + 1, B):
+                ci, cj = int(comp_of[i]), int(comp_of[j])
+                if ci == cj:
+                    continue
+                gap, mid = _closest_pair(ctx, labels, i, j)
+                cost = _dislocation(R, T, i, j, mid, cfg.bridge_joint_prior) + cfg.bridge_gap_weight * gap
+                key = (min(ci, cj), max(ci, cj))
+                if not H.has_edge(*key) or cost < H.edges[key]["weight"]:
+                    H.add_edge(*key, weight=cost, bones=(i, j))
+        for a, b, data in nx.minimum_spanning_edges(H, weight="weight", algorithm="kruskal"):
+            i, j = data["bones"]
+            forest.add_edge(i, j, weight=data["weight"])
+            bridges.add((min(i, j), max(i, j)))
+        diag["bridges"] = diag.get("bridges", 0) + len(bridges)
+    centres = np.array([ctx.Q[labels == b].mean(0) for b in range(B)])
+    root = int(np.argmin(((centres - ctx.centroid) ** 2).sum(1)))
+    parent = np.full(B, -1, np.int64)
+    for u, v in nx.bfs_edges(forest, root):
+        parent[v] = u
+    assert nx.is_tree(forest)  # a spanning tree has no loops (§5.4 criterion 2)
+    return parent, root, bridges
+
+
+def _boundary_centroids(ctx: _Ctx, labels: np.ndarray, parent: np.ndarray) -> np.ndarray:
+    """``c~`` (Eq. 20): centroid of the points of bone and parent that neighbour each other;
+    for bridged bones (no shared boundary) the midpoint of the closest pair; root: its centre."""
+    B = len(parent)
+    out = np.empty((B, 3))
+    nl = np.where(ctx.nbr >= 0, labels[np.maximum(ctx.nbr, 0)], -1)
+    for k in range(B):
+        p = int(parent[k])
+        if p < 0:
+            out[k] = ctx.Q[labels == k].mean(0)
+            continue
+        on_k = (labels == k) & (nl == p).any(1)
+        on_p = (labels == p) & (nl == k).any(1)
+        sel = on_k | on_p
+        if sel.any():
+            out[k] = ctx.Q[sel].mean(0)
+        else:
+            out[k] = _closest_pair(ctx, labels, k, p)[1]
+    return out
+
+
+def _blend_fit(q: np.ndarray, y: np.ndarray, R: np.ndarray, T: np.ndarray, a: int, b: int
+               ) -> tuple[float, np.ndarray]:
+    """Per-point LBS blend of bones ``a`` and ``b``: ``y ~ (1-w) x_a + w x_b`` with one
+    ``w in [0, 1]`` per point for all frames (closed form). Returns (residual m^2, w (n,))."""
+    xa = q[None] @ R[:, a].transpose(0, 2, 1) + T[:, a, None]
+    xb = q[None] @ R[:, b].transpose(0, 2, 1) + T[:, b, None]
+    d, r = xb - xa, y - xa
+    den = (d * d).sum((0, 2))
+    w = np.clip((r * d).sum((0, 2)) / np.maximum(den, 1e-300), 0.0, 1.0)
+    res = float(((r - w[None, :, None] * d) ** 2).sum())
+    return res, w
+
+
+def _prune(ctx: _Ctx, labels: np.ndarray, parent: np.ndarray, joints: np.ndarray,
+           counts: np.ndarray, diag: dict[str, Any]) -> np.ndarray | None:
+    """One pruning step of §5.4 on the tree; returns new labels or ``None`` if nothing to do.
+
+    * spurious leaf: a leaf whose parent has another child and which holds fewer than
+      ``leaf_min_fraction * M`` points -> merged into its parent;
+    * blend band: see ``StructureConfig.band_ratio`` (pairs among its tree and touching
+      neighbours) -> its points go to the nearer side;
+    * close joints: a non-root bone with children whose head joint and every child joint lie
+      within ``short_bone_ratio`` times the bone's own extent (95th percentile distance of its
+      points from their centroid) -> its joints are merged: the bone is removed and
+      each of its points goes to the parent or a child, whichever fits best (Eq. 14 residual).
+    """
+    cfg = ctx.cfg
+    B = len(parent)
+    children = [np.flatnonzero(parent == b) for b in range(B)]
+    # spurious leaves (smallest first)
+    leaves = [b for b in range(B) if parent[b] >= 0 and len(children[b]) == 0
+              and len(children[parent[b]]) >= 2 and counts[b] < cfg.leaf_min_fraction * ctx.M]
+    if leaves:
+        b = min(leaves, key=lambda x: counts[x])
+        diag.setdefault("pruned_leaves", []).append(int(counts[b]))
+        return np.where(labels == b, parent[b], labels)
+    # blend bands: bones explained by per-point blending of two tree neighbours
+    R, T, _c = ctx.fit(labels, B)
+    bands = []
+    touching = _touch_pairs(ctx, labels, cfg.touch_min_pairs)
+    for b in range(B):
+        nb = {int(c) for c in children[b]} | ({int(parent[b])} if parent[b] >= 0 else set())
+        nb |= {j if i == b else i for i, j in touching if b in (i, j)}
+        nb = sorted(nb)
+        if len(nb) < 2 or cfg.band_ratio <= 0:
+            continue
+        sel = np.flatnonzero(labels == b)
+        sub = sel[:: max(1, len(sel) // _BAND_SAMPLE)]  # deterministic subsample, for speed
+        q, y = ctx.Q[sub], ctx.Y[:, sub]
+        own = ((y - q[None] @ R[:, b].transpose(0, 2, 1) - T[:, b, None]) ** 2).sum()
+        for ia in range(len(nb)):
+            for ib in range(ia + 1, len(nb)):
+                res, w = _blend_fit(q, y, R, T, nb[ia], nb[ib])
+                # compare residual variances per degree of freedom: the rigid fit spends 6
+                # per frame, the blend one per point
+                n = len(sub)
+                ratio = (res / max(ctx.F * 3 * n - n, 1)) / max(
+                    own / max(ctx.F * (3 * n - 6), 1), 1e-300)
+                if ratio <= cfg.band_ratio:
+                    bands.append((ratio, b, nb[ia], nb[ib], sel, w))
+    if bands:
+        ratio, b, a, c, sel, _w = min(bands, key=lambda x: x[0])
+        _res, w = _blend_fit(ctx.Q[sel], ctx.Y[:, sel], R, T, a, c)
+        new = labels.copy()
+        new[sel] = np.where(w < 0.5, a, c)
+        diag.setdefault("bands_removed", []).append(round(float(ratio), 4))
+        return new
+    short = []
+    for b in range(B):
+        if parent[b] < 0 or len(children[b]) == 0:
+            continue
+        qb = ctx.Q[labels == b]
+        extent = float(np.percentile(np.linalg.norm(qb - qb.mean(0), axis=1), 95))
+        span = max(float(np.linalg.norm(joints[c] - joints[b])) for c in children[b])
+        if span < cfg.short_bone_ratio * extent:
+            short.append((span / max(extent, 1e-300), b))
+    if short:
+        span, b = min(short)
+        cand_bones = [int(parent[b])] + [int(c) for c in children[b]]
+        sel = np.flatnonzero(labels == b)
+        R, T, _c = ctx.fit(labels, B)
+        cand = np.full((len(sel), len(cand_bones)), -1, np.int64)
+        cand[:] = cand_bones
+        res = _core.cluster_residuals(ctx.Q[sel], np.ascontiguousarray(ctx.Y[:, sel]), R, T,
+                                      np.ascontiguousarray(cand))
+        new = labels.copy()
+        new[sel] = np.array(cand_bones)[res.argmin(1)]
+        diag.setdefault("short_bones_removed", []).append(round(span, 4))
+        return new
+    return None
+
+
+# --------------------------------------------------------------------------------------------
+# entry point
+# --------------------------------------------------------------------------------------------
+
+
+def _check_inputs(rest_points: np.ndarray, points: np.ndarray, cfg: StructureConfig):
+    Q = np.ascontiguousarray(rest_points, dtype=np.float64)
+    Y = np.ascontiguousarray(points, dtype=np.float64)
+    if Q.ndim != 2 or Q.shape[1] != 3 or Q.shape[0] == 0:
+        raise InputError(f"rest_points must be (M, 3), got {Q.shape}")
+    if Y.ndim != 3 or Y.shape[1:] != Q.shape or Y.shape[0] == 0:
+        raise InputError(f"points must be (F, {Q.shape[0]}, 3), got {Y.shape}")
+    if not (np.isfinite(Q).all() and np.isfinite(Y).all()):
+        raise InputError("rest_points / points contain NaN or inf")
+    if cfg.n_clusters < 1 or cfg.cluster_rounds < 0 or cfg.vote_neighbors < 1:
+        raise ConfigError("structure: n_clusters and vote_neighbors must be >= 1, "
+                          "cluster_rounds >= 0")
+    if not 0 <= cfg.merge_percentile <= 100:
+        raise ConfigError("structure: merge_percentile must be in [0, 100]")
+    return Q, Y
+
+
+def extract_structure(rest_points: np.ndarray, points: np.ndarray,
+                      config: StructureConfig | None = None) -> StructureResult:
+    """Skeletal structure from a registered sequence (§5).
+
+    Parameters
+    ----------
+    rest_points
+        ``(M, 3)`` rest-pose points ``q_m``, metres.
+    points
+        ``(F, M, 3)`` registered points ``y_m^t`` (point ``m`` corresponds across frames), m.
+    config
+        :class:`~pointrig.config.StructureConfig` (defaults if ``None``).
+
+    Returns
+    -------
+    StructureResult
+
+    Raises
+    ------
+    InputError
+        On wrong shapes or non-finite values.
+    ConfigError
+        On invalid parameters.
+    """
+    cfg = config or StructureConfig()
+    Q, Y = _check_inputs(rest_points, points, cfg)
+    t0 = time.perf_counter()
+    ctx = _Ctx(Q, Y, cfg)
+    M = ctx.M
+    k = int(min(cfg.n_clusters, M))
+    diag: dict[str, Any] = {"n_init": k}
+    rng = np.random.default_rng(cfg.seed)
+    labels = _kmeans(kmeans_features(Q, Y, cfg), k, cfg.kmeans_iterations, rng)
+    labels = _cluster_rounds(ctx, labels, cfg.cluster_rounds)
+    diag["n_after_clustering"] = int(labels.max() + 1)
+    diag["time_clustering_s"] = round(time.perf_counter() - t0, 4)
+
+    tree_pairs: list[tuple[int, int]] = []
+    passes = 0
+    for passes in range(1, cfg.refine_passes + 1):
+        for _batch in range(ctx.M):
+            labels, merged = _merge_batch(ctx, labels, tree_pairs, diag)
+            tree_pairs = []
+            if not merged:
+                break
+            labels = _cluster_rounds(ctx, labels, cfg.post_merge_rounds)
+        labels, B = _compact(labels)
+        R, T, counts = ctx.fit(labels, B)
+        parent, root, bridges = _build_tree(ctx, labels, B, R, T, diag)
+        # motion test also along bridge edges (bones that do not touch)
+        if bridges:
+            own = _core.cluster_residuals(Q, Y, R, T, np.ascontiguousarray(labels[:, None]))[:, 0]
+            nv = rotation_noise_var(Q, labels, own, B, ctx.F)
+            st = _merge_stat(R, sorted(bridges), cfg.merge_percentile, nv, cfg.noise_margin)
+            if (st < cfg.merge_angle_deg).any():
+                tree_pairs = sorted(bridges)
+                continue
+        tree_pairs = []
+        c_tilde = _boundary_centroids(ctx, labels, parent)
+        joints = solve_joint_positions(R, T, parent, c_tilde, cfg.eta)
+        new = _prune(ctx, labels, parent, joints, counts, diag)
+        if new is None:
+            break
+        labels = _cluster_rounds(ctx, new, cfg.post_merge_rounds)
+    else:
+        log.warning("structure refinement stopped after %d passes", cfg.refine_passes)
+        labels, B = _compact(labels)
+        R, T, counts = ctx.fit(labels, B)
+        parent, root, _b = _build_tree(ctx, labels, B, R, T, diag)
+        c_tilde = _boundary_centroids(ctx, labels, parent)
+        joints = solve_joint_positions(R, T, parent, c_tilde, cfg.eta)
+
+    res_own = _core.cluster_residuals(Q, Y, R, T, np.ascontiguousarray(labels[:, None]))[:, 0]
+    rms = [float(np.sqrt(res_own[labels == b].mean() / ctx.F)) for b in range(B)]
+    diag.update({
+        "n_bones": int(B), "refine_passes": passes, "rms_residual_m": rms,
+        "counts": [int(c) for c in counts], "rms_radius_m": ctx.rms_radius,
+        "time_total_s": round(time.perf_counter() - t0, 4),
+    })
+    log.info("structure: k=%d -> %d clusters -> %d bones in %.2fs", k,
+             diag["n_after_clustering"], B, diag["time_total_s"])
+    return StructureResult(labels=labels, bone_parent=parent, R=R, T=T, joints_rest=joints,
+                           c_tilde=c_tilde, root=root, rest_points=Q, diagnostics=diag)
+
+
+def to_skeleton(result: StructureResult) -> Skeleton:
+    """The :class:`~pointrig.skeleton.Skeleton` of a structure result.
+
+    Joints are the bone heads (joint ``b`` of bone ``b``, parents = ``bone_parent``), with
+    per-frame positions from :func:`pointrig.kinematics.joint_trajectories`. Skeleton bones are
+    the segments parent joint -> child joint (one per non-root bone, named ``b<p>_<k>``);
+    ``bone_rotations`` / ``bone_translations`` are ``R``, ``T`` indexed by *motion bone* (= joint)
+    index, and ``labels`` / ``rest_points`` are attached.
+    """
+    parent = np.asarray(result.bone_parent, np.int64)
+    jp = joint_trajectories(result.joints_rest, result.R, result.T, parent)
+    kids = np.flatnonzero(parent >= 0)
+    return Skeleton(
+        joint_names=[f"j{b}" for b in range(len(parent))],
+        parents=parent,
+        rest_positions=result.joints_rest,
+        joint_positions=jp,
+        bone_heads=parent[kids],
+        bone_tails=kids,
+        bone_rotations=result.R,
+        bone_translations=result.T,
+        rest_points=result.rest_points,
+        labels=result.labels,
+        bone_names=[f"b{parent[k]}_{k}" for k in kids],
+    )
+
+
+def write_structure_outputs(result: StructureResult, out_dir: str | Path,
+                            source: dict[str, Any] | None = None,
+                            params: dict[str, Any] | None = None) -> dict[str, Path]:
+    """Write ``skeleton.json`` (scorable alone) and ``structure.npz`` into ``out_dir``."""
+    out = Path(out_dir)
+    paths = {"skeleton": out / "skeleton.json", "structure": out / "structure.npz"}
+    to_skeleton(result).save_json(paths["skeleton"], source=source, params=params)
+    result.save(paths["structure"])
+    return paths

@@ -1,0 +1,71 @@
+"""End to end: `pointrig extract` on the bundled demo writes every output, follows the
+skeleton.json contract, reuses its registration checkpoint, and is accurate against the
+demo's ground truth."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from pointrig.cli import main
+from pointrig.data import demo_path
+from pointrig.evaluate import evaluate_files
+from pointrig.skeleton import SKELETON_FORMAT, load_skeleton_json
+
+
+@pytest.fixture(scope="module")
+def demo_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("demo")
+    code = main(["extract", str(demo_path() / "frames"), "-o", str(out), "-q"])
+    assert code == 0
+    return out
+
+
+def test_outputs_exist_and_follow_contract(demo_run):
+    for name in ("skeleton.json", "weights.npz", "registration.npz", "skeleton.png",
+                 "skeleton.gif", "skeleton.bvh"):
+        assert (demo_run / name).stat().st_size > 0, name
+    doc = json.loads((demo_run / "skeleton.json").read_text())
+    assert doc["format"] == SKELETON_FORMAT and doc["units"] == "m"
+    J = len(doc["joints"])
+    F = doc["source"]["frames"]
+    assert np.asarray(doc["joint_positions"]).shape == (F, J, 3)
+    parents = [j["parent"] for j in doc["joints"]]
+    assert parents.count(-1) == 1 and all(p < i for i, p in enumerate(parents))
+    for b in doc["bones"]:
+        assert parents[b["tail_joint"]] == b["head_joint"]
+    for stage in ("registration", "structure", "joints", "preprocess"):
+        assert stage in doc["params"]
+    sk = load_skeleton_json(demo_run / "skeleton.json")
+    assert sk.n_joints == J
+    w = np.load(demo_run / "weights.npz")
+    W = w["weights"]
+    assert W.shape[1] == J and np.allclose(W.sum(1), 1) and (W >= 0).all()
+    assert ((W > 0).sum(1) <= 4).all()
+
+
+def test_demo_accuracy(demo_run):
+    rep = evaluate_files(demo_run / "skeleton.json", demo_path() / "gt.npz")
+    assert rep.recall >= 0.8, rep.format_table()
+    assert rep.normalized_error <= 0.04, rep.format_table()
+
+
+def test_resume_reuses_registration(demo_run, capsys):
+    before = (demo_run / "registration.npz").stat().st_mtime_ns
+    code = main(["extract", str(demo_path() / "frames"), "-o", str(demo_run), "-q",
+                 "--no-pictures"])
+    assert code == 0
+    assert "registration reused" in capsys.readouterr().out
+    assert (demo_run / "registration.npz").stat().st_mtime_ns == before
+
+
+def test_bad_input_leaves_no_output(tmp_path, capsys):
+    src = tmp_path / "in"
+    src.mkdir()
+    np.save(src / "f0.npy", np.zeros((5, 3)))
+    out = tmp_path / "out"
+    assert main(["extract", str(src), "-o", str(out)]) == 1
+    assert "at least 2" in capsys.readouterr().err
+    assert not out.exists()

@@ -1,0 +1,168 @@
+"""Step 2 kernels against independent numpy/scipy oracles, result I/O and input checks."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from pointrig import _core
+from pointrig.config import StructureConfig
+from pointrig.errors import FormatError, InputError
+from pointrig.structure import (
+    StructureResult,
+    eq15_weights,
+    extract_structure,
+    fit_bones,
+    relative_rotation_angles,
+    to_skeleton,
+    write_structure_outputs,
+)
+from structure_helpers import make_sequence
+
+
+def _kabsch_oracle(src, dst, w):
+    """Weighted Procrustes via numpy SVD (Umeyama without scale)."""
+    cs = (w[:, None] * src).sum(0) / w.sum()
+    cd = (w[:, None] * dst).sum(0) / w.sum()
+    H = ((src - cs) * w[:, None]).T @ (dst - cd)
+    U, _S, Vt = np.linalg.svd(H)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
+    R = Vt.T @ D @ U.T
+    return R, cd - R @ cs
+
+
+@pytest.fixture(scope="module")
+def noisy_data():
+    rng = np.random.default_rng(3)
+    M, F, K = 120, 6, 4
+    Q = rng.normal(size=(M, 3))
+    labels = rng.integers(0, K, M).astype(np.int64)
+    Rt = Rotation.random(F * K, random_state=4).as_matrix().reshape(F, K, 3, 3)
+    Tt = rng.normal(size=(F, K, 3))
+    Y = np.einsum("fmij,mj->fmi", Rt[:, labels], Q) + Tt[:, labels] + 0.05 * rng.normal(size=(F, M, 3))
+    return Q, np.ascontiguousarray(Y), labels, K
+
+
+def test_cluster_fit_matches_numpy_svd_oracle(noisy_data):
+    Q, Y, labels, K = noisy_data
+    w = np.random.default_rng(5).uniform(0.1, 2.0, len(Q))
+    R, T, counts = _core.cluster_fit(Q, Y, labels, K, w)
+    assert R.shape == (Y.shape[0], K, 3, 3) and T.shape == (Y.shape[0], K, 3)
+    np.testing.assert_array_equal(counts, np.bincount(labels, minlength=K))
+    for t in range(Y.shape[0]):
+        for k in range(K):
+            sel = labels == k
+            Ro, To = _kabsch_oracle(Q[sel], Y[t, sel], w[sel])
+            np.testing.assert_allclose(R[t, k], Ro, atol=1e-9)
+            np.testing.assert_allclose(T[t, k], To, atol=1e-9)
+            assert np.linalg.det(R[t, k]) == pytest.approx(1.0)
+
+
+def test_cluster_fit_empty_cluster_is_identity(noisy_data):
+    Q, Y, labels, K = noisy_data
+    R, T, counts = fit_bones(Q, Y, labels, K + 1)
+    assert counts[K] == 0
+    np.testing.assert_allclose(R[:, K], np.broadcast_to(np.eye(3), R[:, K].shape))
+
+
+def test_residuals_match_direct_evaluation(noisy_data):
+    Q, Y, labels, K = noisy_data
+    R, T, _ = fit_bones(Q, Y, labels, K)
+    cand = np.tile(np.arange(-1, K, dtype=np.int64), (len(Q), 1))
+    res = _core.cluster_residuals(Q, Y, R, T, cand)
+    assert np.isinf(res[:, 0]).all()
+    direct = ((Y[:, :, None, :] - (np.einsum("fkij,mj->fmki", R, Q) + T[:, None])) ** 2).sum((0, 3))
+    np.testing.assert_allclose(res[:, 1:], direct, rtol=1e-10)
+
+
+def test_eq15_weights_match_numpy(noisy_data):
+    Q, Y, labels, K = noisy_data
+    R, T, _ = fit_bones(Q, Y, labels, K)
+    pairs = np.array([(0, 1), (2, 3), (1, 3)])
+    got = eq15_weights(Q, Y, labels, R, T, pairs)
+    for (i, j), g in zip(pairs, got):
+        e = 0.0
+        for a, b in ((i, j), (j, i)):
+            sel = labels == a
+            pred = np.einsum("fij,mj->fmi", R[:, b], Q[sel]) + T[:, b, None]
+            e += ((Y[:, sel] - pred) ** 2).sum() / sel.sum()
+        assert g == pytest.approx(e, rel=1e-10)
+
+
+def test_relative_rotation_angles_match_scipy():
+    Rs = Rotation.random(10, random_state=1)
+    R = np.stack([np.eye(3)[None].repeat(5, 0), Rs.as_matrix()[:5], Rs.as_matrix()[5:]], 1)
+    ang = relative_rotation_angles(R, [(0, 1), (1, 2)])
+    np.testing.assert_allclose(ang[0], Rs[:5].magnitude(), atol=1e-7)
+    np.testing.assert_allclose(ang[1], (Rs[:5].inv() * Rs[5:]).magnitude(), atol=1e-7)
+
+
+def test_bad_inputs_raise():
+    Q = np.zeros((10, 3))
+    with pytest.raises(InputError):
+        extract_structure(Q, np.zeros((3, 9, 3)))
+    Y = np.zeros((3, 10, 3))
+    Y[1, 2, 0] = np.nan
+    with pytest.raises(InputError):
+        extract_structure(Q, Y)
+    with pytest.raises(ValueError):
+        _core.cluster_fit(Q, np.zeros((3, 10, 3)), np.zeros(10, np.int64) + 5, 2)
+    with pytest.raises(ValueError):
+        _core.cluster_residuals(Q, np.zeros((3, 10, 3)), np.zeros((3, 1, 3, 3)),
+                                np.zeros((3, 1, 3)), np.full((10, 1), 4, np.int64))
+
+
+@pytest.fixture(scope="module")
+def arm_result():
+    d = make_sequence("arm", n_points=900, n_frames=25, noise=0.002, blend=0.05)
+    return d, extract_structure(d["rest"], d["points"], StructureConfig(n_clusters=20))
+
+
+def test_result_contract(arm_result):
+    d, r = arm_result
+    B, F, M = r.n_bones, d["points"].shape[0], len(d["rest"])
+    assert r.labels.shape == (M,) and r.labels.min() == 0 and r.labels.max() == B - 1
+    assert r.R.shape == (F, B, 3, 3) and r.T.shape == (F, B, 3)
+    assert r.joints_rest.shape == (B, 3) and r.c_tilde.shape == (B, 3)
+    assert (r.bone_parent == -1).sum() == 1 and r.bone_parent[r.root] == -1
+    # root = bone whose centre is nearest the rest centroid
+    centres = np.array([d["rest"][r.labels == b].mean(0) for b in range(B)])
+    assert r.root == int(np.argmin(np.linalg.norm(centres - d["rest"].mean(0), axis=1)))
+    np.testing.assert_allclose(r.joints_rest[r.root], centres[r.root])
+    # bone transforms are the Eq. 14 fits of the final labels
+    R2, T2, _ = fit_bones(d["rest"], d["points"], r.labels, B)
+    np.testing.assert_allclose(r.R, R2, atol=1e-12)
+    json.dumps(r.diagnostics)
+
+
+def test_save_load_roundtrip_and_skeleton(arm_result, tmp_path):
+    _d, r = arm_result
+    r.save(tmp_path / "s.npz")
+    r2 = StructureResult.load(tmp_path / "s.npz")
+    for key in ("labels", "bone_parent", "R", "T", "joints_rest", "c_tilde", "rest_points"):
+        np.testing.assert_array_equal(getattr(r, key), getattr(r2, key))
+    assert r2.root == r.root and r2.diagnostics == json.loads(json.dumps(r.diagnostics))
+    with pytest.raises(InputError):
+        StructureResult.load(tmp_path / "missing.npz")
+    np.savez(tmp_path / "bad.npz", x=np.zeros(3))
+    with pytest.raises(FormatError):
+        StructureResult.load(tmp_path / "bad.npz")
+    sk = to_skeleton(r)
+    assert sk.n_joints == r.n_bones and sk.n_bones == r.n_bones - 1
+    assert sk.joint_positions.shape == (r.R.shape[0], r.n_bones, 3)
+    np.testing.assert_array_equal(sk.parents, r.bone_parent)
+    np.testing.assert_array_equal(sk.bone_heads, r.bone_parent[sk.bone_tails])
+    paths = write_structure_outputs(r, tmp_path / "out")
+    doc = json.loads(paths["skeleton"].read_text())
+    assert doc["format"] == "pointrig.skeleton/1" and len(doc["joints"]) == r.n_bones
+
+
+def test_deterministic_given_seed():
+    d = make_sequence("arm", n_points=600, n_frames=15, noise=0.002)
+    a = extract_structure(d["rest"], d["points"], StructureConfig(n_clusters=15, seed=3))
+    b = extract_structure(d["rest"], d["points"], StructureConfig(n_clusters=15, seed=3))
+    np.testing.assert_array_equal(a.labels, b.labels)
+    np.testing.assert_array_equal(a.bone_parent, b.bone_parent)
