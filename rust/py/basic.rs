@@ -14,6 +14,9 @@ fn as_vecs(flat: &[f64]) -> Vec<Vector3<f64>> {
         .collect()
 }
 
+/// `(R (3, 3), t (3,))` returned to Python.
+type RotationAndTranslation<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f64>>);
+
 /// Weighted absolute orientation (Kabsch, Eq. 14) with the det correction of Lemma 1.
 #[pyfunction]
 #[pyo3(signature = (src, dst, weights=None))]
@@ -22,7 +25,7 @@ fn kabsch<'py>(
     src: PyReadonlyArray2<'py, f64>,
     dst: PyReadonlyArray2<'py, f64>,
     weights: Option<PyReadonlyArray1<'py, f64>>,
-) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f64>>)> {
+) -> PyResult<RotationAndTranslation<'py>> {
     let s = as_vecs(points(py, &src, "src")?);
     let d = as_vecs(points(py, &dst, "dst")?);
     if s.len() != d.len() {

@@ -87,7 +87,7 @@ pub(crate) fn to_array2<'py>(
     data: Vec<f64>,
     cols: usize,
 ) -> PyResult<Bound<'py, PyArray2<f64>>> {
-    let rows = if cols == 0 { 0 } else { data.len() / cols };
+    let rows = data.len().checked_div(cols).unwrap_or(0);
     PyArray1::from_vec(py, data).reshape([rows, cols])
 }
 
