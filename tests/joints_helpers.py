@@ -259,3 +259,86 @@ def joint_errors(fig: Figure, joints_rest, R, T) -> dict:
         "traj_mean": float(per_frame.mean()),
         "norm_mean": float(norm.mean()),
     }
+
+
+# ------------------------------------------------------------------ pointrig.synth adapter
+
+
+@dataclass
+class SynthCase:
+    """A pointrig.synth sequence prepared for step 3 with a step-2 stand-in."""
+
+    name: str
+    frames: list
+    rest_points: np.ndarray  # (M, 3) = exact surface samples at frame 0 (camera frame)
+    registered: np.ndarray  # (F, M, 3) exact correspondences + noise (step-1 stand-in)
+    structure: StructureStandin
+    seq: object  # the SynthSequence (GT joints, surface, ...)
+    bone_joint: np.ndarray  # (B,) GT joint index of each bone
+
+
+def synth_case(name: str = "human", n_frames: int = 30, n_points: int = 2000,
+               reg_noise: float = 0.005, seed: int = 0, **synth_kw) -> SynthCase:
+    """Render ``name`` with pointrig.synth (Kinect-like noise) and build step-2 inputs: rest
+    points = ``n_points`` exact surface samples at frame 0; registered = their exact positions
+    in every frame plus ``reg_noise`` Gaussian noise; step 2 = rigid Kabsch fit per GT part
+    (``surface_labels``) and Eq. 20 joints with boundary centroids (parts without samples are
+    dropped and their children re-attached to the nearest kept ancestor)."""
+    from pointrig import _core
+    from pointrig.synth import synthesize
+
+    seq = synthesize(name, n_frames, seed=seed, **synth_kw)
+    rng = np.random.default_rng(seed)
+    S = seq.surface.shape[1]
+    pick = np.sort(rng.choice(S, size=min(n_points, S), replace=False))
+    Q = np.ascontiguousarray(seq.surface[0, pick])
+    Y = seq.surface[:, pick] + rng.normal(0, reg_noise, (n_frames, len(pick), 3))
+    lab_gt = np.asarray(seq.surface_labels)[pick]
+    parents_gt = np.asarray(seq.joint_parents)
+    kept = [j for j in range(len(parents_gt)) if np.sum(lab_gt == j) >= 10]
+    remap = {j: i for i, j in enumerate(kept)}
+
+    def kept_ancestor(j):
+        p = parents_gt[j]
+        while p >= 0 and p not in remap:
+            p = parents_gt[p]
+        return p
+
+    parent = np.array([remap[kept_ancestor(j)] if kept_ancestor(j) >= 0 else -1 for j in kept])
+    # points of dropped parts go to their nearest kept ancestor (or the root)
+    lab = np.empty(len(pick), int)
+    for j in np.unique(lab_gt):
+        a = j
+        while a >= 0 and a not in remap:
+            a = parents_gt[a]
+        lab[lab_gt == j] = remap[a] if a >= 0 else 0
+    roots = np.flatnonzero(parent < 0)
+    for r_ in roots[1:]:
+        parent[r_] = roots[0]
+    B = len(kept)
+    R = np.zeros((n_frames, B, 3, 3))
+    T = np.zeros((n_frames, B, 3))
+    for b in range(B):
+        sel = lab == b
+        for f in range(n_frames):
+            R[f, b], T[f, b] = _core.kabsch(Q[sel], np.ascontiguousarray(Y[f, sel]))
+    ct = boundary_centroids(Q, lab, parent)
+    joints = solve_joint_positions(R, T, parent, ct, 1.0)
+    st = StructureStandin(lab, parent, R, T, joints, ct, int(roots[0]))
+    return SynthCase(name, [np.ascontiguousarray(v) for v in seq.frames], Q,
+                     np.ascontiguousarray(Y), st, seq, np.array(kept))
+
+
+def synth_scores(case: SynthCase, joints_rest, R, T) -> dict:
+    """pointrig.evaluate scores of the predicted joint trajectories (one joint per bone)."""
+    from pointrig.evaluate import evaluate
+
+    seq = case.seq
+    pred = joint_trajectories(joints_rest, R, T, case.structure.bone_parent)
+    rep = evaluate(pred, seq.gt_joints, seq.joint_parents, surface=seq.surface,
+                   surface_labels=seq.surface_labels, skinned=seq.skinned)
+    # also the direct per-bone error (bone b's joint vs the GT joint it came from)
+    d = np.linalg.norm(pred - seq.gt_joints[:, case.bone_joint], axis=2).mean(0)
+    nr = case.structure.bone_parent >= 0
+    return {"recall": rep.recall, "raw": rep.raw_error, "norm": rep.normalized_error,
+            "direct": float(d[nr].mean())}

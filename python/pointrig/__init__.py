@@ -27,6 +27,7 @@ from .errors import (
     TrackingLostError,
 )
 from .io import read_sequence, write_sequence
+from .joints import JointsResult, learn_joints
 from .sequence import PointSequence
 from .skeleton import Skeleton, load_skeleton_json
 
@@ -40,6 +41,7 @@ __all__ = [
     "FormatError",
     "InputError",
     "JointsConfig",
+    "JointsResult",
     "NumericalError",
     "PipelineConfig",
     "PointSequence",
@@ -49,6 +51,7 @@ __all__ = [
     "Skeleton",
     "StructureConfig",
     "TrackingLostError",
+    "learn_joints",
     "load_config",
     "load_skeleton_json",
     "read_sequence",

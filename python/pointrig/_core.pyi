@@ -17,3 +17,36 @@ def kabsch(
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
     """Weighted absolute orientation (Eq. 14, Lemma 1): ``R (3, 3)``, ``t (3,)`` with
     ``dst ~ src @ R.T + t``."""
+
+# --- step 3, LBS-based joint learning (§6.4); R is (F*B, 9) row-major, T (F*B, 3) ---
+def lbs_skin(
+    q: npt.NDArray[np.float64], idx: npt.NDArray[np.int64], w: npt.NDArray[np.float64],
+    r: npt.NDArray[np.float64], t: npt.NDArray[np.float64], n_frames: int,
+) -> npt.NDArray[np.float64]:
+    """LBS (Eq. 13) of ``q (M, 3)`` with sparse weights ``idx, w (M, K)``: ``(F*M, 3)``."""
+def lbs_fit_weights(
+    q: npt.NDArray[np.float64], r: npt.NDArray[np.float64], t: npt.NDArray[np.float64],
+    a: npt.NDArray[np.float64], z: npt.NDArray[np.float64], n_frames: int, k: int,
+    allowed: npt.NDArray[np.bool_] | None = None,
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """Eq. 22 on the reduced data term (weights ``a (F, M)``, targets ``z (F*M, 3)``): the k
+    bones with the smallest residuals (among ``allowed (M, B)``), exact simplex QP.
+    Returns ``idx (M, k)``, ``w (M, k)``, residual ``(M,)``."""
+def lbs_sweep_paper(
+    q: npt.NDArray[np.float64], idx: npt.NDArray[np.int64], w: npt.NDArray[np.float64],
+    r: npt.NDArray[np.float64], t: npt.NDArray[np.float64], a: npt.NDArray[np.float64],
+    z: npt.NDArray[np.float64], r_pre: npt.NDArray[np.float64], t_pre: npt.NDArray[np.float64],
+    bone_parent: npt.NDArray[np.int64], joints: npt.NDArray[np.float64], alpha: float,
+    gamma: float, n_frames: int,
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """One sweep of Eqs. 23-26 over the bones of every frame: new ``(R, T)``."""
+def lbs_sweep_articulated(
+    q: npt.NDArray[np.float64], idx: npt.NDArray[np.int64], w: npt.NDArray[np.float64],
+    r: npt.NDArray[np.float64], t: npt.NDArray[np.float64], a: npt.NDArray[np.float64],
+    z: npt.NDArray[np.float64], r_pre: npt.NDArray[np.float64],
+    bone_parent: npt.NDArray[np.int64], joints: npt.NDArray[np.float64], gamma: float,
+    n_frames: int,
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """Joint-constrained sweep: each bone rotates about its head joint with its subtree."""
+def simplex_qp(h: npt.NDArray[np.float64], g: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """Exact argmin of ``0.5 w'Hw - g'w`` s.t. ``w >= 0, sum w = 1`` (k <= 8)."""

@@ -101,8 +101,16 @@ class JointsConfig:
     #   frame of data on the joint's subtree (the paper's eta acts against F frames in Eq. 20)
     prior_from_weights: bool = True  # articulated mode: prior target = where the blend weights
     #   of the two bones cross (centroid weighted by w_mk w_mp) instead of c~, once W blends
+    gmm_density_normalize: bool = True  # scale E_GMM by M / N_t so the data term counts each
+    #   template point once whatever the sensor's point density (False = Eq. 21a as printed)
+    gmm_robust: float = 0.0  # >0: Cauchy down-weighting of GMM targets far (in sqrt(tau)) from y
     use_gmm: bool = True  # include E_GMM (Eq. 18); False = registered points only (Fig. 4d)
+    weight_candidates: str = "tree"  # Eq. 22 bone choice among "all" bones (paper) or only the
+    #   point's step-2 bone and its tree neighbours ("tree": LBS weights stay local)
     update_weights: bool = True  # Eq. 22 weight updates (False keeps the step-2 labels)
+    joint_tolerance: float = 5e-4  # also stop when no joint moved more than this (m) in an
+    #   iteration (after min_iterations); 0 = the paper's energy criterion only
+    min_iterations: int = 3
     bone_sweeps: int = 1  # bone-update sweeps per M-step (Eqs. 23-26)
     # --- truncated E-step (Eq. 4 restricted to near neighbours) ---
     estep_neighbors: int = 8  # nearest deformed points considered per observed point

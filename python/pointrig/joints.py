@@ -29,7 +29,9 @@ Two variants (``JointsConfig.mode``):
 from __future__ import annotations
 
 import logging
+import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Protocol, Sequence
@@ -45,6 +47,7 @@ from .kinematics import joint_trajectories, solve_joint_positions
 __all__ = ["JointsResult", "StructureLike", "learn_joints", "e_step", "solve_joints_articulated"]
 
 log = logging.getLogger(__name__)
+_N_THREADS = max(1, min(4, os.cpu_count() or 1))
 
 
 class StructureLike(Protocol):
@@ -162,28 +165,30 @@ def e_step(
     Np = np.zeros(F)
     sxx = np.zeros(F)
     k = min(n_neighbors, M)
-    for t in range(F):
+
+    def one(t: int) -> None:
         V = frames[t]
         N = len(V)
         tree = cKDTree(X[t])
         r = radius_sigmas * np.sqrt(tau[t])
-        d, idx = tree.query(V, k=k, distance_upper_bound=r, workers=-1)
+        d, idx = tree.query(V, k=k, distance_upper_bound=r)
         if k == 1:
             d, idx = d[:, None], idx[:, None]
         ok = np.isfinite(d)
-        g = np.where(ok, np.exp(-0.5 * np.where(ok, d, 0.0) ** 2 / tau[t]), 0.0)
+        g = np.exp(-0.5 * np.where(ok, d * d, np.inf) / tau[t])
         c = (2 * np.pi * tau[t]) ** 1.5 * omega * M / ((1 - omega) * N)
         p = g / (g.sum(1, keepdims=True) + c)
-        idx = np.where(ok, idx, 0)
-        flat = idx.ravel()
+        flat = np.where(ok, idx, 0).ravel()
         pf = p.ravel()
         P1[t] = np.bincount(flat, pf, minlength=M)
-        vi = np.repeat(V, k, axis=0)
         for a in range(3):
-            PX[t, :, a] = np.bincount(flat, pf * vi[:, a], minlength=M)
+            PX[t, :, a] = np.bincount(flat, (p * V[:, a:a + 1]).ravel(), minlength=M)
         pt1 = p.sum(1)
         Np[t] = pt1.sum()
         sxx[t] = float(pt1 @ np.einsum("ij,ij->i", V, V))
+
+    with ThreadPoolExecutor(max_workers=_N_THREADS) as ex:
+        list(ex.map(one, range(F)))
     return EStats(P1, PX, Np, sxx)
 
 
@@ -272,7 +277,9 @@ def solve_joints_articulated(
     joints = np.array(c_prior, dtype=float, copy=True)
     S = _subtree_matrix(parent)
     # s (F, M, 3) = LBS with zero translations
-    s = np.einsum("mb,fbij,mj->fmi", W, R, Q, optimize=True)
+    idx, w = _dense_to_sparse(W, int(max(1, (W > 0).sum(1).max())))
+    Rf = np.ascontiguousarray(R.reshape(F * B, 9))
+    s = _core.lbs_skin(Q, idx, w, Rf, np.zeros((F * B, 3)), F).reshape(F, -1, 3)
     r0 = z - s
     S0 = a.sum(1)
     S0s = np.where(S0 > 0, S0, 1.0)
@@ -448,6 +455,16 @@ def learn_joints(
     diag: dict[str, list] = {k: [] for k in (
         "e_gmm", "e_register", "e_joint", "e_small", "alpha", "joint_shift", "tau_mean",
         "t_estep", "t_weights", "t_bones", "t_joints")}
+    allowed = None
+    if cfg.weight_candidates == "tree":
+        # only the point's step-2 bone and the bones adjacent to it in the tree
+        adj = np.eye(B, dtype=bool)
+        for k_, p_ in enumerate(parent):
+            if p_ >= 0:
+                adj[k_, p_] = adj[p_, k_] = True
+        allowed = np.ascontiguousarray(adj[np.asarray(structure.labels)])
+    elif cfg.weight_candidates != "all":
+        raise ConfigError(f"joints.weight_candidates must be 'all' or 'tree', got {cfg.weight_candidates!r}")
     X = skin_all(W, R, T)
     joints0 = joints.copy()
     prev_total = None
@@ -457,8 +474,18 @@ def learn_joints(
         # ---- E-step (Eq. 4 form) and the reduced data term
         if cfg.use_gmm:
             st = e_step(frames, X, tau, cfg.omega, cfg.estep_neighbors, cfg.estep_radius_sigmas)
-            a = st.P1 / tau[:, None] + cfg.zeta
-            num = st.PX / tau[:, None, None] + cfg.zeta * Y
+            a_g = st.P1 / tau[:, None]
+            if cfg.gmm_density_normalize:
+                # one unit of evidence per template point, not per observed point (N_t / M)
+                a_g = a_g * (M / np.array([len(v) for v in frames], float))[:, None]
+            if cfg.gmm_robust > 0 and cfg.zeta > 0:
+                # down-weight GMM targets that disagree with the registration (occlusion,
+                # mismatched surfaces): Cauchy weight on |PX/P1 - y| in units of sqrt(tau)
+                zg = st.PX / np.maximum(st.P1, 1e-300)[..., None]
+                r2 = np.sum((zg - Y) ** 2, axis=2) / (cfg.gmm_robust ** 2 * tau[:, None])
+                a_g = a_g / (1.0 + r2)
+            a = a_g + cfg.zeta
+            num = a_g[..., None] * (st.PX / np.maximum(st.P1, 1e-300)[..., None]) + cfg.zeta * Y
         else:
             st = None
             a = np.full((F, M), cfg.zeta)
@@ -473,7 +500,7 @@ def learn_joints(
         # ---- weights (Eq. 22)
         if cfg.update_weights:
             Rf, Tf = _flat_rt(R, T)
-            idx, w, _ = _core.lbs_fit_weights(Q, Rf, Tf, a, zf, F, K)
+            idx, w, _ = _core.lbs_fit_weights(Q, Rf, Tf, a, zf, F, K, allowed)
             Wn = _sparse_to_dense(idx, w, B)
             seen = a.sum(0) > 0
             W = np.where(seen[:, None], Wn, W)
@@ -544,6 +571,8 @@ def learn_joints(
         if not articulated:
             alpha *= cfg.alpha_growth
         if prev_total is not None and abs(total - prev_total) <= cfg.tolerance * max(abs(total), 1e-300):
+            break
+        if cfg.joint_tolerance > 0 and it >= cfg.min_iterations and shift < cfg.joint_tolerance:
             break
         prev_total = total
     diag.pop("_prev_joints", None)
