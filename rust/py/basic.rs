@@ -36,22 +36,15 @@ fn kabsch<'py>(
         Some(w) => {
             let w = flat1(py, w, "weights")?;
             if w.len() != s.len() {
-                return Err(PyValueError::new_err(
-                    "weights must have one entry per point",
-                ));
+                return Err(PyValueError::new_err("weights must have one entry per point"));
             }
             Some(w.to_vec())
         }
         None => None,
     };
     let (r, t) = py.detach(|| rotation::kabsch(&s, &d, w.as_deref()));
-    let rv: Vec<f64> = (0..3)
-        .flat_map(|i| (0..3).map(move |j| r[(i, j)]))
-        .collect();
-    Ok((
-        to_array2(py, rv, 3)?,
-        PyArray1::from_vec(py, t.iter().copied().collect()),
-    ))
+    let rv: Vec<f64> = (0..3).flat_map(|i| (0..3).map(move |j| r[(i, j)])).collect();
+    Ok((to_array2(py, rv, 3)?, PyArray1::from_vec(py, t.iter().copied().collect())))
 }
 
 pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {

@@ -5,9 +5,7 @@
 //! around work that can take long. Core errors become Python exceptions in one place
 //! (`to_pyerr`), never panics.
 
-use numpy::{
-    PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods,
-};
+use numpy::{PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
@@ -74,9 +72,9 @@ pub(crate) fn flat1<'a>(
     arr: &'a PyReadonlyArray1<'_, f64>,
     name: &str,
 ) -> PyResult<&'a [f64]> {
-    let s = arr
-        .as_slice()
-        .map_err(|_| PyValueError::new_err(format!("{name}: array must be contiguous")))?;
+    let s = arr.as_slice().map_err(|_| {
+        PyValueError::new_err(format!("{name}: array must be contiguous"))
+    })?;
     check_finite(name, s).map_err(|e| to_pyerr(py, e))?;
     Ok(s)
 }
