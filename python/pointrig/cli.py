@@ -83,6 +83,80 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _noise_from_args(args: argparse.Namespace):
+    from dataclasses import replace
+
+    from .synth import NoiseConfig
+
+    base = NoiseConfig.clean() if args.clean else NoiseConfig()
+    over = {"seed": args.noise_seed, "floor": args.floor, "background": args.background}
+    for key in ("dropout", "outliers", "flying", "lateral_px"):
+        val = getattr(args, key)
+        if val is not None:
+            over[key] = val
+    if args.no_quantize:
+        over["quantize"] = False
+    return replace(base, **over)
+
+
+def cmd_synth(args: argparse.Namespace) -> int:
+    """Render a synthetic depth-camera sequence with ground truth."""
+    from .synth import FIGURES, Camera, synthesize
+
+    if args.list:
+        print("figures: " + ", ".join(FIGURES))
+        print("or a rigged, animated .glb/.gltf file")
+        return 0
+    if args.source is None or args.output is None:
+        from .errors import ConfigError
+
+        raise ConfigError("give a SOURCE (figure name or .glb/.gltf) and -o OUTPUT")
+    seq = synthesize(
+        args.source, n_frames=args.frames, seed=args.seed, camera=Camera.kinect(args.resolution),
+        noise=_noise_from_args(args), fps=args.fps, speed=args.speed, amplitude=args.amplitude,
+        walk=args.walk, yaw=args.yaw, clip=args.clip, start=args.clip_start,
+        surface_points=args.surface_points,
+    )
+    out = seq.write(args.output)
+    n = [len(f) for f in seq.frames]
+    print(f"wrote {out}/frames ({seq.n_frames} frames, {min(n)}-{max(n)} points) and "
+          f"{out}/gt.npz ({len(seq.joint_names)} joints, {seq.surface.shape[1]} surface samples)")
+    if args.preview:
+        from .viz import preview_sequence
+
+        png = preview_sequence(out, args.preview, frame=min(args.preview_frame,
+                                                             seq.n_frames - 1))
+        print(f"preview {png}")
+    return 0
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    """Score a predicted skeleton against ground truth."""
+    from .evaluate import THRESHOLD_FRACTION, evaluate_files
+
+    rep = evaluate_files(
+        args.pred, args.gt, start=args.start, stop=args.stop, stride=args.stride,
+        threshold=args.threshold,
+        threshold_fraction=(args.threshold_fraction if args.threshold_fraction is not None
+                            else THRESHOLD_FRACTION),
+    )
+    if args.json:
+        print(json.dumps(rep.to_dict(), indent=1))
+    else:
+        print(rep.format_table())
+    return 0
+
+
+def cmd_preview(args: argparse.Namespace) -> int:
+    """Write a PNG of one frame with ground-truth (and predicted) joints overlaid."""
+    from .viz import preview_sequence
+
+    png = preview_sequence(args.sequence, args.output, frame=args.frame,
+                           skeleton_json=args.skeleton)
+    print(f"preview {png}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``pointrig`` command."""
     from . import __version__
@@ -103,6 +177,64 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("demo", help="run the pipeline on the bundled demo sequence")
     p.add_argument("-o", "--output", default=None, help="output folder (default: a temp folder)")
     p.set_defaults(func=cmd_demo)
+
+    p = sub.add_parser("synth", help="render a synthetic depth-camera sequence with ground truth")
+    p.add_argument("source", nargs="?", default=None,
+                   help="a figure (human, upper_body, arm, hand, quadruped, snake, robot_arm) "
+                        "or a rigged, animated .glb/.gltf")
+    p.add_argument("-o", "--output", default=None, help="output folder (frames/ and gt.npz)")
+    p.add_argument("--list", action="store_true", help="list the procedural figures")
+    p.add_argument("--frames", type=int, default=30, help="number of frames (default 30)")
+    p.add_argument("--seed", type=int, default=0, help="motion and sampling seed")
+    p.add_argument("--fps", type=float, default=30.0, help="frame rate, Hz (default 30)")
+    p.add_argument("--speed", type=float, default=1.0,
+                   help="motion speed factor (6 makes the arm move > 25 cm per frame)")
+    p.add_argument("--amplitude", type=float, default=1.0,
+                   help="joint-angle excursion as a fraction of the joint range")
+    p.add_argument("--walk", type=float, default=0.0,
+                   help="metres of root translation across the view over the sequence")
+    p.add_argument("--yaw", type=float, default=0.0, help="turn the subject, degrees")
+    p.add_argument("--clip", default=None, help="glTF animation name or index")
+    p.add_argument("--clip-start", type=float, default=0.0, help="glTF clip time offset, s")
+    p.add_argument("--resolution", type=int, choices=(640, 320), default=640,
+                   help="640 (640x480, fx 525) or 320 (320x240)")
+    p.add_argument("--surface-points", type=int, default=3000,
+                   help="exact surface samples stored in gt.npz")
+    p.add_argument("--clean", action="store_true", help="no sensor corruption at all")
+    p.add_argument("--noise-seed", type=int, default=0, help="seed of the sensor noise")
+    p.add_argument("--dropout", type=float, default=None, help="random pixel dropout fraction")
+    p.add_argument("--outliers", type=float, default=None,
+                   help="uniform outliers, fraction of the points")
+    p.add_argument("--flying", type=float, default=None,
+                   help="probability of a flying pixel at a depth edge")
+    p.add_argument("--lateral-px", type=float, default=None, help="lateral jitter, pixels")
+    p.add_argument("--no-quantize", action="store_true", help="no disparity quantisation")
+    p.add_argument("--floor", action="store_true", help="add floor points")
+    p.add_argument("--background", action="store_true", help="add a background wall")
+    p.add_argument("--preview", default=None, metavar="PNG",
+                   help="also write a PNG preview of a frame")
+    p.add_argument("--preview-frame", type=int, default=0, help="frame of the preview")
+    p.set_defaults(func=cmd_synth)
+
+    p = sub.add_parser("evaluate", help="score a skeleton.json against ground truth (gt.npz)")
+    p.add_argument("pred", help="skeleton.json (or its folder, or an .npz with 'joints')")
+    p.add_argument("gt", help="gt.npz (or the synthetic sequence folder)")
+    p.add_argument("--threshold", type=float, default=None,
+                   help="matching threshold, metres (default: a fraction of the subject size)")
+    p.add_argument("--threshold-fraction", type=float, default=None,
+                   help="matching threshold as a fraction of the subject size (default 0.08)")
+    p.add_argument("--start", type=int, default=0, help="first GT frame used for extraction")
+    p.add_argument("--stop", type=int, default=None, help="stop before this GT frame")
+    p.add_argument("--stride", type=int, default=1, help="GT frame stride used for extraction")
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser("preview", help="PNG of a frame: points coloured by depth, GT joints")
+    p.add_argument("sequence", help="sequence folder (frames/ and optional gt.npz)")
+    p.add_argument("--frame", type=int, default=0, help="frame index (default 0)")
+    p.add_argument("-o", "--output", required=True, help="output PNG")
+    p.add_argument("--skeleton", default=None, help="also overlay a predicted skeleton.json")
+    p.set_defaults(func=cmd_preview)
     return parser
 
 

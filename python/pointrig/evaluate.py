@@ -1,0 +1,439 @@
+"""Scoring an extracted skeleton against ground-truth joints (paper §7.3.3).
+
+Rules (also in the README):
+
+**Subject size** ``s``: the median over frames of the bounding-box diagonal of the
+ground-truth surface samples (``gt.npz`` ``surface``), or of the skinned ground-truth joints
+when no surface is given.
+
+**Scorable ground-truth joints** (all three must hold):
+
+1. *carries skin*: the joint's bone dominates some skin (``skinned`` in ``gt.npz``; joints
+   without skin, such as IK targets or sockets in glTF rigs, are not scored);
+2. *visibly articulates* (non-root joints): the joint's part swings relative to its parent
+   part by more than ``swing_fraction * s`` (default 1.5 %): the parent part's surface samples
+   give a rigid motion per frame (Kabsch); the child part's samples are mapped back to frame
+   0 with the inverse of that motion, and the swing is the largest RMS displacement over the
+   frames. The parent part is that of the nearest ancestor carrying at least 3 samples (the
+   world frame if none). Root joints (parent -1) pass this test. Without surface samples this
+   test is skipped;
+3. *not a near-duplicate*: if two joints still scorable stay within ``duplicate_fraction * s``
+   (default 2 %) of each other on average over the frames, only the one nearer the root (then
+   the lower index) is scored.
+
+**Matching**: predicted joints are matched one-to-one to scorable ground-truth joints by the
+Hungarian method on the mean distance over frames; pairs whose mean distance is at or above the
+threshold ``tau = threshold_fraction * s`` (default 8 %, e.g. ~15 cm for a 1.8 m human, ~6 cm
+for a single arm) are forbidden, so the matching maximises the number of valid pairs, then
+minimises their total distance.
+
+**Scores**: recall = matched / scorable GT joints; precision = matched / predicted joints;
+raw error = mean over matched pairs of the mean over frames of ``|p_t - g_t|``; normalised
+error (Helten et al. 2013, as in §7.3.3) = the same after subtracting each pair's mean offset
+``mean_t (p_t - g_t)`` from the prediction. Errors are in metres.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import InputError
+
+__all__ = ["EvalReport", "JointRow", "evaluate", "evaluate_files", "scorable_joints",
+           "subject_size", "load_prediction", "SWING_FRACTION", "DUPLICATE_FRACTION",
+           "THRESHOLD_FRACTION"]
+
+#: Matching threshold as a fraction of the subject size.
+THRESHOLD_FRACTION = 0.08
+#: Minimum swing of a part relative to its parent part, fraction of the subject size.
+SWING_FRACTION = 0.015
+#: Joints closer than this fraction of the subject size (mean over frames) are duplicates.
+DUPLICATE_FRACTION = 0.02
+#: Minimum surface samples for a part to define a rigid motion.
+MIN_PART_SAMPLES = 3
+
+
+@dataclass
+class JointRow:
+    """One ground-truth joint in the report."""
+
+    name: str
+    scorable: bool
+    reason: str  # "ok", "no skin", "static (swing x m)", "duplicate of NAME"
+    matched: int  # predicted joint index, -1 if unmatched
+    raw_error: float  # metres, nan if unmatched
+    normalized_error: float  # metres, nan if unmatched
+    swing: float  # metres (nan if not measured)
+
+
+@dataclass
+class EvalReport:
+    """Scores of one prediction against ground truth (see the module docstring)."""
+
+    recall: float
+    precision: float
+    raw_error: float
+    normalized_error: float
+    threshold: float
+    subject_size: float
+    n_pred: int
+    n_gt: int
+    n_scorable: int
+    n_matched: int
+    n_frames: int
+    scorable: np.ndarray
+    rows: list[JointRow] = field(default_factory=list)
+    pred_names: list[str] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict (NaN -> None)."""
+
+        def clean(v):
+            if isinstance(v, float) and not np.isfinite(v):
+                return None
+            return v
+
+        d = {k: clean(getattr(self, k)) for k in (
+            "recall", "precision", "raw_error", "normalized_error", "threshold", "subject_size",
+            "n_pred", "n_gt", "n_scorable", "n_matched", "n_frames")}
+        d["joints"] = [{k: clean(v) for k, v in dataclasses.asdict(r).items()} for r in self.rows]
+        for j in d["joints"]:
+            m = j["matched"]
+            j["matched_name"] = self.pred_names[m] if 0 <= m < len(self.pred_names) else None
+        return d
+
+    def format_table(self) -> str:
+        """Human-readable summary and per-joint table."""
+        cm = 100.0
+        lines = [
+            f"frames {self.n_frames}   predicted joints {self.n_pred}   GT joints {self.n_gt} "
+            f"({self.n_scorable} scorable)",
+            f"subject size {self.subject_size:.3f} m   match threshold {self.threshold:.3f} m",
+            f"recall     {self.recall:.3f}  ({self.n_matched}/{self.n_scorable})",
+            f"precision  {self.precision:.3f}  ({self.n_matched}/{self.n_pred})",
+            f"raw error         {self.raw_error * cm:7.2f} cm",
+            f"normalised error  {self.normalized_error * cm:7.2f} cm",
+            "",
+            f"{'joint':<18} {'scored':<7} {'matched':<14} {'raw cm':>8} {'norm cm':>8}  note",
+        ]
+        for r in self.rows:
+            mname = (self.pred_names[r.matched] if 0 <= r.matched < len(self.pred_names)
+                     else "-")
+            raw = f"{r.raw_error * cm:8.2f}" if np.isfinite(r.raw_error) else f"{'-':>8}"
+            nrm = (f"{r.normalized_error * cm:8.2f}" if np.isfinite(r.normalized_error)
+                   else f"{'-':>8}")
+            lines.append(f"{r.name[:18]:<18} {('yes' if r.scorable else 'no'):<7} "
+                         f"{mname[:14]:<14} {raw} {nrm}  {'' if r.reason == 'ok' else r.reason}")
+        return "\n".join(lines)
+
+
+def _check_joints(arr: Any, what: str, path: str | Path | None) -> np.ndarray:
+    try:
+        a = np.asarray(arr, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{what}: not a numeric array ({exc})", path) from None
+    if a.ndim != 3 or a.shape[2] != 3:
+        raise InputError(f"{what}: expected joint positions of shape (F, J, 3), got "
+                         f"{a.shape}", path)
+    if a.shape[0] == 0 or a.shape[1] == 0:
+        raise InputError(f"{what}: no frames or no joints (shape {a.shape})", path)
+    bad = ~np.isfinite(a)
+    if bad.any():
+        f = int(np.argwhere(bad)[0][0])
+        raise InputError(f"{what}: {int(bad.any(axis=2).sum())} joint position(s) with NaN/inf",
+                         path, frame=f)
+    return a
+
+
+def subject_size(gt_joints: np.ndarray, surface: np.ndarray | None = None,
+                 skinned: np.ndarray | None = None) -> float:
+    """The subject size ``s`` in metres (see the module docstring)."""
+    if surface is not None and np.asarray(surface).size:
+        pts = np.asarray(surface, dtype=np.float64)
+    else:
+        pts = np.asarray(gt_joints, dtype=np.float64)
+        if skinned is not None and np.asarray(skinned).any():
+            pts = pts[:, np.asarray(skinned, dtype=bool)]
+    diag = np.linalg.norm(pts.max(axis=1) - pts.min(axis=1), axis=1)
+    return float(np.median(diag))
+
+
+def _kabsch_batch(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rigid motions ``dst_t ~ R_t src + T_t``: ``src (M, 3)``, ``dst (F, M, 3)`` ->
+    ``R (F, 3, 3)``, ``T (F, 3)``."""
+    cs = src.mean(axis=0)
+    cd = dst.mean(axis=1)
+    H = np.einsum("mi,fmj->fij", src - cs, dst - cd[:, None])
+    U, _, Vt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(np.einsum("fij,fjk->fik", U, Vt)))
+    D = np.zeros((len(d), 3, 3))
+    D[:, 0, 0] = 1
+    D[:, 1, 1] = 1
+    D[:, 2, 2] = d
+    R = np.einsum("fji,fjk,flk->fil", Vt, D, U)  # V D U^T
+    T = cd - np.einsum("fij,j->fi", R, cs)
+    return R, T
+
+
+def _swings(parents: np.ndarray, surface: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    J = len(parents)
+    counts = np.bincount(labels[labels >= 0], minlength=J)[:J]
+    out = np.full(J, np.nan)
+    for j in range(J):
+        if parents[j] < 0 or counts[j] < 1:
+            continue
+        a = int(parents[j])
+        while a >= 0 and counts[a] < MIN_PART_SAMPLES:
+            a = int(parents[a])
+        child = surface[:, labels == j]  # (F, m, 3)
+        if a < 0:
+            back = child
+        else:
+            par = surface[:, labels == a]
+            R, T = _kabsch_batch(par[0], par)
+            back = np.einsum("fji,fmj->fmi", R, child - T[:, None])  # R^T (x - T)
+        out[j] = float(np.sqrt(((back - child[0]) ** 2).sum(axis=2).mean(axis=1)).max())
+    return out
+
+
+def _depths(parents: np.ndarray) -> np.ndarray:
+    d = np.zeros(len(parents), dtype=np.int64)
+    for j in range(len(parents)):
+        k, n = j, 0
+        while parents[k] >= 0 and n <= len(parents):
+            k = int(parents[k])
+            n += 1
+        d[j] = n
+    return d
+
+
+def scorable_joints(gt_joints: np.ndarray, gt_parents: np.ndarray, *,
+                    surface: np.ndarray | None = None,
+                    surface_labels: np.ndarray | None = None,
+                    skinned: np.ndarray | None = None,
+                    names: list[str] | None = None,
+                    size: float | None = None,
+                    swing_fraction: float = SWING_FRACTION,
+                    duplicate_fraction: float = DUPLICATE_FRACTION,
+                    ) -> tuple[np.ndarray, list[str], np.ndarray]:
+    """Which ground-truth joints are scored (rules in the module docstring).
+
+    Parameters
+    ----------
+    gt_joints
+        ``(F, J, 3)`` metres.
+    gt_parents
+        ``(J,)`` parent index, ``-1`` for roots.
+    surface, surface_labels
+        Optional ``(F, S, 3)`` surface samples (same material points over frames) and their
+        dominant joint ``(S,)``; needed for the articulation test.
+    skinned
+        Optional ``(J,)`` bool; default: joints dominating some surface sample (all joints if
+        no surface).
+    names
+        Joint names for the reasons (default ``j<i>``).
+    size
+        Subject size (default :func:`subject_size`).
+
+    Returns
+    -------
+    mask
+        ``(J,)`` bool.
+    reasons
+        ``J`` strings: ``"ok"`` or why the joint is not scored.
+    swing
+        ``(J,)`` metres, ``nan`` where not measured.
+    """
+    g = np.asarray(gt_joints, dtype=np.float64)
+    parents = np.asarray(gt_parents, dtype=np.int64).reshape(-1)
+    J = g.shape[1]
+    names = names or [f"j{i}" for i in range(J)]
+    have_surface = surface is not None and surface_labels is not None and \
+        np.asarray(surface).size > 0
+    if skinned is None:
+        if have_surface:
+            lab = np.asarray(surface_labels, dtype=np.int64)
+            skinned = np.bincount(lab[lab >= 0], minlength=J)[:J] > 0
+        else:
+            skinned = np.ones(J, dtype=bool)
+    skinned = np.asarray(skinned, dtype=bool).reshape(-1)
+    s = subject_size(g, surface if have_surface else None, skinned) if size is None else size
+    mask = skinned.copy()
+    reasons = ["ok" if k else "no skin" for k in skinned]
+    swing = np.full(J, np.nan)
+    if have_surface:
+        swing = _swings(parents, np.asarray(surface, dtype=np.float64),
+                        np.asarray(surface_labels, dtype=np.int64))
+        for j in range(J):
+            if mask[j] and parents[j] >= 0 and not swing[j] > swing_fraction * s:
+                mask[j] = False
+                reasons[j] = f"static (swing {swing[j] * 100:.1f} cm)" if np.isfinite(
+                    swing[j]) else "static (no samples)"
+    depth = _depths(parents)
+    order = sorted(np.nonzero(mask)[0], key=lambda j: (depth[j], j))
+    kept: list[int] = []
+    for j in order:
+        dup = [k for k in kept
+               if np.linalg.norm(g[:, j] - g[:, k], axis=1).mean() < duplicate_fraction * s]
+        if dup:
+            mask[j] = False
+            reasons[j] = f"duplicate of {names[dup[0]]}"
+        else:
+            kept.append(j)
+    return mask, reasons, swing
+
+
+def evaluate(pred_joints: np.ndarray, gt_joints: np.ndarray, gt_parents: np.ndarray, *,
+             gt_names: list[str] | None = None, pred_names: list[str] | None = None,
+             surface: np.ndarray | None = None, surface_labels: np.ndarray | None = None,
+             skinned: np.ndarray | None = None, threshold: float | None = None,
+             threshold_fraction: float = THRESHOLD_FRACTION,
+             swing_fraction: float = SWING_FRACTION,
+             duplicate_fraction: float = DUPLICATE_FRACTION,
+             pred_source: str | Path | None = None,
+             gt_source: str | Path | None = None) -> EvalReport:
+    """Score predicted joint trajectories against ground truth.
+
+    Parameters
+    ----------
+    pred_joints
+        ``(F, P, 3)`` predicted joint positions, metres, same frames and frame as the GT.
+    gt_joints
+        ``(F, J, 3)`` ground-truth joints, metres.
+    gt_parents
+        ``(J,)`` parents, ``-1`` for roots.
+    gt_names, pred_names
+        Optional joint names.
+    surface, surface_labels, skinned
+        Optional ground-truth surface samples ``(F, S, 3)``, their labels ``(S,)`` and the
+        skinned mask ``(J,)`` for the scorable-joint rules.
+    threshold
+        Absolute matching threshold in metres (default ``threshold_fraction`` * subject size).
+    pred_source, gt_source
+        File names used in error messages.
+
+    Returns
+    -------
+    EvalReport
+
+    Raises
+    ------
+    InputError
+        Malformed predictions or ground truth (wrong shape, NaN, frame-count mismatch).
+    """
+    from scipy.optimize import linear_sum_assignment
+
+    g = _check_joints(gt_joints, "ground truth", gt_source)
+    p = _check_joints(pred_joints, "prediction", pred_source)
+    if p.shape[0] != g.shape[0]:
+        raise InputError(f"prediction has {p.shape[0]} frames but the ground truth has "
+                         f"{g.shape[0]} (use the same frame range)", pred_source)
+    F, J = g.shape[:2]
+    P = p.shape[1]
+    gt_names = list(gt_names) if gt_names is not None else [f"j{i}" for i in range(J)]
+    pred_names = list(pred_names) if pred_names is not None else [f"p{i}" for i in range(P)]
+    parents = np.asarray(gt_parents, dtype=np.int64).reshape(-1)
+    if parents.shape != (J,):
+        raise InputError(f"ground truth parents must have {J} entries, got {parents.shape}",
+                         gt_source)
+    have_surface = surface is not None and surface_labels is not None
+    s = subject_size(g, surface if have_surface else None, skinned)
+    mask, reasons, swing = scorable_joints(
+        g, parents, surface=surface, surface_labels=surface_labels, skinned=skinned,
+        names=gt_names, size=s, swing_fraction=swing_fraction,
+        duplicate_fraction=duplicate_fraction)
+    tau = float(threshold) if threshold is not None else threshold_fraction * s
+    cols = np.nonzero(mask)[0]
+    dist = np.linalg.norm(p[:, :, None, :] - g[:, None, cols, :], axis=3)  # (F, P, Js)
+    cost = dist.mean(axis=0)
+    matched = np.full(J, -1, dtype=np.int64)
+    raw = np.full(J, np.nan)
+    norm = np.full(J, np.nan)
+    if len(cols):
+        big = 1e6 * (1.0 + float(np.max(cost)))
+        gated = np.where(cost < tau, cost, big)
+        ri, ci = linear_sum_assignment(gated)
+        for a, b in zip(ri, ci):
+            if cost[a, b] < tau:
+                j = int(cols[b])
+                matched[j] = int(a)
+                diff = p[:, a] - g[:, j]
+                raw[j] = float(np.linalg.norm(diff, axis=1).mean())
+                norm[j] = float(np.linalg.norm(diff - diff.mean(axis=0), axis=1).mean())
+    n_match = int((matched >= 0).sum())
+    n_sc = int(mask.sum())
+    rows = [JointRow(gt_names[j], bool(mask[j]), reasons[j], int(matched[j]), float(raw[j]),
+                     float(norm[j]), float(swing[j])) for j in range(J)]
+    return EvalReport(
+        recall=n_match / n_sc if n_sc else float("nan"),
+        precision=n_match / P,
+        raw_error=float(np.nanmean(raw)) if n_match else float("nan"),
+        normalized_error=float(np.nanmean(norm)) if n_match else float("nan"),
+        threshold=tau, subject_size=s, n_pred=P, n_gt=J, n_scorable=n_sc, n_matched=n_match,
+        n_frames=F, scorable=mask, rows=rows, pred_names=pred_names,
+    )
+
+
+def load_prediction(path: str | Path) -> tuple[np.ndarray, list[str]]:
+    """Predicted joints ``(F, P, 3)`` and names from a ``skeleton.json`` (or an ``.npz`` with a
+    ``joints`` array, e.g. another ``gt.npz``; or a folder holding ``skeleton.json``).
+
+    Raises
+    ------
+    InputError
+        Missing or malformed file (the message names the file).
+    """
+    pth = Path(path)
+    if pth.is_dir():
+        pth = pth / "skeleton.json"
+    if not pth.exists():
+        raise InputError("prediction file not found", pth)
+    if pth.suffix.lower() == ".npz":
+        try:
+            with np.load(pth, allow_pickle=False) as z:
+                if "joints" not in z.files:
+                    raise InputError("npz prediction lacks a 'joints' array", pth)
+                joints = z["joints"]
+                names = [str(n) for n in z["names"]] if "names" in z.files else None
+        except InputError:
+            raise
+        except (ValueError, OSError, EOFError) as exc:
+            raise InputError(f"not a readable .npz file: {exc}", pth) from None
+    else:
+        from .skeleton import load_skeleton_json
+
+        try:
+            sk = load_skeleton_json(pth)
+        except ValueError as exc:  # Skeleton's own shape checks
+            if isinstance(exc, InputError):
+                raise
+            raise InputError(f"malformed skeleton document: {exc}", pth) from None
+        joints, names = sk.joint_positions, sk.joint_names
+    joints = _check_joints(joints, "prediction", pth)
+    if names is None or len(names) != joints.shape[1]:
+        names = [f"p{i}" for i in range(joints.shape[1])]
+    return joints, names
+
+
+def evaluate_files(pred_path: str | Path, gt_path: str | Path, *, start: int = 0,
+                   stop: int | None = None, stride: int = 1, **kwargs: Any) -> EvalReport:
+    """:func:`evaluate` a ``skeleton.json`` against a ``gt.npz`` (or their folders).
+
+    ``start, stop, stride`` select the ground-truth frames that the prediction was made from
+    (as ``pointrig extract --start/--stop/--stride``).
+    """
+    from .synth.scene import load_gt
+
+    pred, pred_names = load_prediction(pred_path)
+    gt = load_gt(gt_path)
+    sl = slice(start, stop, stride)
+    surf = gt.get("surface")
+    return evaluate(pred, gt["joints"][sl], gt["parents"], gt_names=gt["names"],
+                    pred_names=pred_names, surface=None if surf is None else surf[sl],
+                    surface_labels=gt.get("surface_labels"), skinned=gt.get("skinned"),
+                    pred_source=Path(pred_path), gt_source=gt["path"], **kwargs)

@@ -1,0 +1,127 @@
+"""PNG previews of point-cloud frames with joints and bones overlaid (numpy + Pillow).
+
+Points are projected with a pinhole camera (the sequence's own intrinsics when known, else
+Kinect v1 at 640x480) and coloured by depth (near = warm, far = cool); joints are white discs,
+bones are lines from each joint to its parent.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["depth_colors", "render_preview", "preview_sequence"]
+
+# a compact "turbo"-like colour ramp: (position, r, g, b)
+_RAMP = np.array([
+    [0.00, 48, 18, 59], [0.15, 70, 107, 227], [0.30, 40, 187, 236], [0.45, 49, 242, 153],
+    [0.60, 162, 252, 60], [0.75, 237, 208, 58], [0.88, 251, 128, 34], [1.00, 122, 4, 3],
+])
+
+
+def depth_colors(z: np.ndarray, lo: float | None = None, hi: float | None = None) -> np.ndarray:
+    """``(N,)`` depths -> ``(N, 3)`` uint8 colours (near warm, far cool)."""
+    z = np.asarray(z, dtype=np.float64)
+    if len(z) == 0:
+        return np.zeros((0, 3), dtype=np.uint8)
+    lo = float(np.percentile(z, 2)) if lo is None else lo
+    hi = float(np.percentile(z, 98)) if hi is None else hi
+    s = 1.0 - np.clip((z - lo) / max(hi - lo, 1e-9), 0, 1)
+    cols = np.stack([np.interp(s, _RAMP[:, 0], _RAMP[:, k]) for k in (1, 2, 3)], axis=1)
+    return cols.astype(np.uint8)
+
+
+def render_preview(points: np.ndarray, joints: np.ndarray | None = None,
+                   parents: np.ndarray | None = None, intrinsics: tuple | None = None,
+                   scale: int = 0, pred_joints: np.ndarray | None = None,
+                   pred_parents: np.ndarray | None = None, title: str | None = None):
+    """A :class:`PIL.Image.Image` of ``points (N, 3)`` (camera frame) coloured by depth, with
+    ``joints (J, 3)`` and bones (``parents (J,)``) overlaid, optionally a second (predicted)
+    skeleton in magenta.
+
+    ``intrinsics = (fx, fy, cx, cy, width, height)``; ``scale`` enlarges the image (0 = auto:
+    to at least 640 pixels wide).
+    """
+    from PIL import Image, ImageDraw
+
+    if intrinsics is None:
+        intrinsics = (525.0, 525.0, 319.5, 239.5, 640, 480)
+    fx, fy, cx, cy, W, H = (float(v) for v in intrinsics)
+    W, H = int(W), int(H)
+    k = scale if scale > 0 else max(1, int(np.ceil(640 / W)))
+    img = np.full((H * k, W * k, 3), 24, dtype=np.uint8)
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    pts = pts[pts[:, 2] > 1e-6]
+    if len(pts):
+        u = np.round((fx * pts[:, 0] / pts[:, 2] + cx) * k).astype(np.int64)
+        v = np.round((fy * pts[:, 1] / pts[:, 2] + cy) * k).astype(np.int64)
+        cols = depth_colors(pts[:, 2])
+        order = np.argsort(-pts[:, 2])  # far first, near drawn last
+        for du in range(k):
+            for dv in range(k):
+                uu, vv = u[order] + du - k // 2, v[order] + dv - k // 2
+                ok = (uu >= 0) & (uu < W * k) & (vv >= 0) & (vv < H * k)
+                img[vv[ok], uu[ok]] = cols[order][ok]
+    im = Image.fromarray(img)
+    draw = ImageDraw.Draw(im)
+
+    def skel(j, par, colour, rad):
+        if j is None:
+            return
+        j = np.asarray(j, dtype=np.float64).reshape(-1, 3)
+        z = np.maximum(j[:, 2], 1e-6)
+        ju = (fx * j[:, 0] / z + cx) * k
+        jv = (fy * j[:, 1] / z + cy) * k
+        if par is not None:
+            for a, p in enumerate(np.asarray(par).reshape(-1)):
+                if p >= 0:
+                    draw.line([(ju[a], jv[a]), (ju[p], jv[p])], fill=colour, width=max(2, k))
+        for a in range(len(j)):
+            r = rad * k
+            draw.ellipse([ju[a] - r, jv[a] - r, ju[a] + r, jv[a] + r], fill=(255, 255, 255),
+                         outline=colour)
+
+    skel(joints, parents, (255, 255, 255), 3)
+    skel(pred_joints, pred_parents, (255, 0, 255), 2)
+    if title:
+        draw.text((6, 4), title, fill=(230, 230, 230))
+    return im
+
+
+def preview_sequence(seq_dir: str | Path, out_png: str | Path, frame: int = 0,
+                     skeleton_json: str | Path | None = None) -> Path:
+    """Write a PNG preview of frame ``frame`` of a sequence folder (``frames/`` + optional
+    ``gt.npz``), with GT joints and, optionally, a predicted ``skeleton.json`` overlaid."""
+    from .errors import InputError
+    from .io import read_sequence
+
+    d = Path(seq_dir)
+    frames_dir = d / "frames" if (d / "frames").is_dir() else d
+    seq = read_sequence(frames_dir, start=frame, stop=frame + 1, min_frames=1)
+    joints = parents = None
+    intr = None
+    gt_path = d / "gt.npz"
+    if gt_path.exists():
+        from .synth.scene import load_gt
+
+        gt = load_gt(gt_path)
+        if not 0 <= frame < gt["joints"].shape[0]:
+            raise InputError(f"frame {frame} out of range (0..{gt['joints'].shape[0] - 1})",
+                             gt_path)
+        joints, parents = gt["joints"][frame], gt["parents"]
+        if "intrinsics" in gt:
+            intr = tuple(gt["intrinsics"])
+    pj = pp = None
+    if skeleton_json is not None:
+        from .skeleton import load_skeleton_json
+
+        sk = load_skeleton_json(skeleton_json)
+        if frame < sk.n_frames:
+            pj, pp = sk.joint_positions[frame], sk.parents
+    im = render_preview(seq.frames[0], joints, parents, intr, pred_joints=pj, pred_parents=pp,
+                        title=f"{d.name} frame {frame}")
+    out = Path(out_png)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    im.save(out)
+    return out
