@@ -356,7 +356,7 @@ def evaluate(pred_joints: np.ndarray, gt_joints: np.ndarray, gt_parents: np.ndar
     norm = np.full(J, np.nan)
     if len(cols):
         big = 1e6 * (1.0 + float(np.max(cost)))
-        gated = np.where(cost < tau, cost, big + cost)
+        gated = np.where(cost < tau, cost, big)
         ri, ci = linear_sum_assignment(gated)
         for a, b in zip(ri, ci):
             if cost[a, b] < tau:

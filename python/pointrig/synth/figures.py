@@ -581,8 +581,9 @@ _MAKERS = {
 def make_figure(name: str, seed: int = 0) -> Figure:
     """Build the procedural figure ``name`` (one of :data:`FIGURES`).
 
-    ``seed`` is accepted for API symmetry; the figure's geometry is fixed (motion is seeded
-    in :meth:`Figure.angles`).
+    ``seed = 0`` gives the canonical proportions; any other seed varies the overall size
+    (+-12 %), each bone's length (+-10 %) and thickness (+-15 %), i.e. another individual.
+    Motion is seeded separately in :meth:`Figure.angles`.
 
     Raises
     ------
@@ -594,5 +595,34 @@ def make_figure(name: str, seed: int = 0) -> Figure:
     except KeyError:
         raise ConfigError(f"unknown figure {name!r}; choose one of {', '.join(FIGURES)}") \
             from None
-    del seed
-    return maker()
+    fig = maker()
+    if seed == 0:
+        return fig
+    return _build(fig.name, _vary(fig.specs, seed), rigid=fig.rigid,
+                  facing=tuple(fig.facing))
+
+
+#: Proportion variation of ``make_figure(name, seed != 0)``: overall size, per-bone length and
+#: per-bone thickness factors are drawn uniformly within +- these fractions.
+VARY_SIZE, VARY_LENGTH, VARY_RADIUS = 0.12, 0.10, 0.15
+
+
+def _vary(specs: list[_BoneSpec], seed: int) -> list[_BoneSpec]:
+    """Copies of ``specs`` with seeded proportions: each bone's length and radii are scaled,
+    children keep their attachment point relative to the (scaled) parent."""
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 5]))
+    g = 1 + rng.uniform(-VARY_SIZE, VARY_SIZE)
+    ls = 1 + rng.uniform(-VARY_LENGTH, VARY_LENGTH, len(specs))
+    rs = 1 + rng.uniform(-VARY_RADIUS, VARY_RADIUS, len(specs))
+    out: list[_BoneSpec] = []
+    for b, sp in enumerate(specs):
+        if sp.parent < 0:
+            head = sp.head * g
+        else:
+            par, new_par = specs[sp.parent], out[sp.parent]
+            head = new_par.head + (sp.head - par.head) * g * ls[sp.parent]
+        tail = head + (sp.tail - sp.head) * g * ls[b]
+        out.append(_BoneSpec(sp.name, sp.parent, head, tail, sp.shape,
+                             (sp.radii[0] * g * rs[b], sp.radii[1] * g * rs[b]), sp.ext,
+                             list(sp.dofs)))
+    return out

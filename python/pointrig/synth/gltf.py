@@ -452,7 +452,7 @@ def pose_gltf(path: str | Path, n_frames: int, fps: float = 30.0, speed: float =
     dur = model.clip_duration(c) if c is not None else 0.0
     times = start + np.arange(n_frames) * speed / fps
     if dur > 0:
-        times = np.mod(times, dur)
+        times = np.where(times > dur, np.mod(times, dur), times)  # loop past the end
     G = model.globals_at(c, times)
     M = G[:, model.joints] @ model.inverse_bind  # (F, J, 4, 4) skinning matrices
     Rp, tp = _placement(n_frames, walk, yaw)

@@ -111,8 +111,8 @@ def quantize_depth(z: np.ndarray, cfg: NoiseConfig) -> np.ndarray:
 
 def _neighbour_stats(depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per pixel: max depth among valid 4-neighbours (0 if none) and whether any 4-neighbour is
-    invalid (or outside the image)."""
-    pad = np.pad(depth, 1, constant_values=0.0)
+    invalid (the image border counts as a copy of the edge pixels)."""
+    pad = np.pad(depth, 1, mode="edge")
     nb = np.stack([pad[:-2, 1:-1], pad[2:, 1:-1], pad[1:-1, :-2], pad[1:-1, 2:]])
     return nb.max(axis=0), (nb <= 0).any(axis=0)
 

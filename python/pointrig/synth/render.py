@@ -67,50 +67,57 @@ def rasterize(vertices: np.ndarray, triangles: np.ndarray, cam: Camera
         return depth.reshape(H, W), tri_index.reshape(H, W)
     tu, tv, tz, area, x0, x1, y0, y1, ok = _screen(verts, tris, cam)
     idx = np.nonzero(ok)[0]
+    # barycentrics b0, b1 and 1/z are affine in the pixel centre (px, py) for each triangle:
+    # f(px, py) = c0 + c1 px + c2 py; one gather of 9 coefficients per candidate pixel
+    u0, u1, u2 = tu[idx, 0], tu[idx, 1], tu[idx, 2]
+    v0, v1, v2 = tv[idx, 0], tv[idx, 1], tv[idx, 2]
+    ia = 1.0 / area[idx]
+    b0c = np.stack([(u1 * v2 - u2 * v1) * ia, (v1 - v2) * ia, (u2 - u1) * ia], 1)
+    b1c = np.stack([(u2 * v0 - u0 * v2) * ia, (v2 - v0) * ia, (u0 - u2) * ia], 1)
+    iz0, iz1, iz2 = 1.0 / tz[idx, 0], 1.0 / tz[idx, 1], 1.0 / tz[idx, 2]
+    b2c = -b0c - b1c
+    b2c[:, 0] += 1.0
+    izc = b0c * iz0[:, None] + b1c * iz1[:, None] + b2c * iz2[:, None]
+    coef = np.concatenate([b0c, b1c, izc], axis=1)  # (n, 9)
+    bx0 = x0[idx].astype(np.int64)
+    by0 = y0[idx].astype(np.int64)
     bw = (x1[idx] - x0[idx] + 1).astype(np.int64)
     bh = (y1[idx] - y0[idx] + 1).astype(np.int64)
     counts = bw * bh
     best_z = np.full(H * W, np.inf)
-    # chunk boundaries by cumulative candidate count
     csum = np.cumsum(counts)
+    cand_pix, cand_z, cand_t = [], [], []
     start = 0
     while start < len(idx):
         base = csum[start - 1] if start > 0 else 0
         stop = int(np.searchsorted(csum, base + CHUNK_CANDIDATES, side="right"))
         stop = max(stop, start + 1)
-        sel = idx[start:stop]
         cnt = counts[start:stop]
-        w_ = bw[start:stop]
         n = int(cnt.sum())
-        local_tri = np.repeat(np.arange(len(sel)), cnt)
+        lt = np.repeat(np.arange(start, stop), cnt)
         offs = np.arange(n) - np.repeat(np.cumsum(cnt) - cnt, cnt)
-        ww = w_[local_tri]
-        px = x0[sel][local_tri] + (offs % ww)
-        py = y0[sel][local_tri] + (offs // ww)
-        t = sel[local_tri]
-        u0, u1, u2 = tu[t, 0], tu[t, 1], tu[t, 2]
-        v0, v1, v2 = tv[t, 0], tv[t, 1], tv[t, 2]
-        inv_a = 1.0 / area[t]
-        b0 = ((u1 - px) * (v2 - py) - (u2 - px) * (v1 - py)) * inv_a
-        b1 = ((u2 - px) * (v0 - py) - (u0 - px) * (v2 - py)) * inv_a
-        b2 = 1.0 - b0 - b1
-        inside = (b0 >= -1e-12) & (b1 >= -1e-12) & (b2 >= -1e-12)
+        ww = bw[lt]
+        dy, dx = np.divmod(offs, ww)
+        px = (bx0[lt] + dx).astype(np.float64)
+        py = (by0[lt] + dy).astype(np.float64)
+        c = coef[lt]
+        b0 = c[:, 0] + c[:, 1] * px + c[:, 2] * py
+        b1 = c[:, 3] + c[:, 4] * px + c[:, 5] * py
+        inside = (b0 >= -1e-12) & (b1 >= -1e-12) & (1.0 - b0 - b1 >= -1e-12)
         if inside.any():
-            b0, b1, b2, t = b0[inside], b1[inside], b2[inside], t[inside]
-            iz = b0 / tz[t, 0] + b1 / tz[t, 1] + b2 / tz[t, 2]
-            z = 1.0 / iz
+            ci = c[inside]
+            z = 1.0 / (ci[:, 6] + ci[:, 7] * px[inside] + ci[:, 8] * py[inside])
             pix = (py[inside] * W + px[inside]).astype(np.int64)
-            # nearest candidate per pixel: sort by (pixel, z), keep the first of each pixel
-            order = np.lexsort((z, pix))
-            pix_s = pix[order]
-            first = np.ones(len(order), dtype=bool)
-            first[1:] = pix_s[1:] != pix_s[:-1]
-            keep = order[first]
-            pk, zk = pix[keep], z[keep]
-            closer = zk < best_z[pk]
-            best_z[pk[closer]] = zk[closer]
-            tri_index[pk[closer]] = t[keep][closer]
+            np.minimum.at(best_z, pix, z)
+            cand_pix.append(pix)
+            cand_z.append(z)
+            cand_t.append(idx[lt[inside]])
         start = stop
+    if cand_pix:
+        pix = np.concatenate(cand_pix)
+        z = np.concatenate(cand_z)
+        win = z == best_z[pix]
+        tri_index[pix[win]] = np.concatenate(cand_t)[win]
     hit = np.isfinite(best_z)
     depth[hit] = best_z[hit]
     return depth.reshape(H, W), tri_index.reshape(H, W)

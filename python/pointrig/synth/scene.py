@@ -33,6 +33,8 @@ log = logging.getLogger(__name__)
 DEFAULT_SURFACE_POINTS = 3000
 #: Floor/wall half-extent around the subject, metres.
 SCENE_HALF_EXTENT = 4.0
+#: The floor stops this far in front of the camera (metres).
+FLOOR_NEAR = 0.05
 
 
 @dataclass
@@ -151,10 +153,15 @@ class SynthSequence:
             "meta": np.array(json.dumps({"noise": self.noise.to_dict(), "params": self.params})),
         }
 
-    def write(self, out_dir: str | Path, binary: bool = True) -> Path:
+    def write(self, out_dir: str | Path, binary: bool = True, float32: bool = False) -> Path:
         """Write ``out_dir/frames/frame_0000.ply ...`` and ``out_dir/gt.npz``; return
-        ``out_dir``."""
+        ``out_dir``.
+
+        Frames are binary little-endian PLY in float64 (``float32=True`` halves the size; the
+        rounding is below 1 micrometre at Kinect ranges), or ascii with ``binary=False``.
+        """
         from ..io import write_npz, write_ply
+        from ..io.atomic import atomic_path
 
         out = Path(out_dir)
         fdir = out / "frames"
@@ -162,7 +169,16 @@ class SynthSequence:
         for old in fdir.glob("frame_*.ply"):
             old.unlink()
         for t, pts in enumerate(self.frames):
-            write_ply(fdir / f"frame_{t:04d}.ply", pts, binary=binary)
+            path = fdir / f"frame_{t:04d}.ply"
+            if float32 and binary:
+                header = ("ply\nformat binary_little_endian 1.0\n"
+                          f"element vertex {len(pts)}\nproperty float x\nproperty float y\n"
+                          "property float z\nend_header\n")
+                with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+                    fh.write(header.encode("ascii"))
+                    fh.write(np.ascontiguousarray(pts, dtype="<f4").tobytes())
+            else:
+                write_ply(path, pts, binary=binary)
         write_npz(out / "gt.npz", **self.gt_arrays())
         return out
 
@@ -181,7 +197,7 @@ def load_gt(path: str | Path) -> dict[str, Any]:
     from ..errors import InputError
 
     p = Path(path)
-    if p.is_dir():
+    if p.is_dir() or (not p.exists() and p.suffix == ""):
         p = p / "gt.npz"
     if not p.exists():
         raise InputError("ground-truth file not found", p)
@@ -234,9 +250,12 @@ def pose_figure(name: str, n_frames: int, fps: float, speed: float, amplitude: f
                  fig.facing, {"figure": name, "triangles": int(len(fig.triangles))})
 
 
-def _scene_quads(lo: np.ndarray, hi: np.ndarray, facing: np.ndarray, noise: NoiseConfig
-                 ) -> tuple[np.ndarray, np.ndarray]:
-    """World-frame floor and wall quads as vertices ``(V, 3)`` and triangles ``(T, 3)``."""
+def _scene_quads(lo: np.ndarray, hi: np.ndarray, facing: np.ndarray, noise: NoiseConfig,
+                 eye: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World-frame floor and wall quads as vertices ``(V, 3)`` and triangles ``(T, 3)``.
+
+    The floor ends :data:`FLOOR_NEAR` in front of the camera position ``eye`` (the rasteriser
+    does not clip triangles crossing the camera plane)."""
     verts, tris = [], []
     c = (lo + hi) / 2
     e = SCENE_HALF_EXTENT
@@ -245,13 +264,15 @@ def _scene_quads(lo: np.ndarray, hi: np.ndarray, facing: np.ndarray, noise: Nois
     side /= np.linalg.norm(side)
     if noise.floor:
         y = lo[1] - 0.002
-        q = np.array([[c[0] - e, y, c[2] - e], [c[0] + e, y, c[2] - e],
-                      [c[0] + e, y, c[2] + e], [c[0] - e, y, c[2] + e]])
+        s_near = min(e, float((eye - c) @ f) - FLOOR_NEAR)
+        q = np.array([c - side * e - f * e, c + side * e - f * e, c + side * e + f * s_near,
+                      c - side * e + f * s_near])
+        q[:, 1] = y
         verts.append(q)
     if noise.background:
         depth_half = float(np.abs((hi - lo) / 2 @ np.abs(f)))
         centre = c - f * (depth_half + noise.background_distance)
-        y0, y1 = lo[1] - 0.5, hi[1] + 2.0
+        y0, y1 = (lo[1] - 0.002 if noise.floor else lo[1] - 0.5), hi[1] + 2.0
         q = np.array([centre + side * -e, centre + side * e, centre + side * e,
                       centre + side * -e])
         q[:, 1] = [y0, y0, y1, y1]
@@ -274,26 +295,28 @@ def render_posed(posed: Posed, camera: Camera | None, noise: NoiseConfig, fps: f
         cam = cam.placed_for(lo, hi, posed.facing)
     Rc = np.asarray(cam.rotation, dtype=np.float64)
     tc = np.asarray(cam.translation, dtype=np.float64)
-    scene_v, scene_t = _scene_quads(lo, hi, posed.facing, noise)
+    eye = -Rc.T @ tc
+    scene_v, scene_t = _scene_quads(lo, hi, posed.facing, noise, eye)
     scene_v_cam = cam.world_to_camera(scene_v)
     n_tri = len(posed.triangles)
     all_tris = np.concatenate([posed.triangles, scene_t + posed.vertices.shape[1]])
     tri_label = np.argmax(posed.weights[posed.triangles].sum(axis=1), axis=1)
     frames, labels = [], []
+    rays = None
+    if noise.grazing_cos > 0:
+        vv, uu = np.mgrid[0:cam.height, 0:cam.width].astype(np.float64)
+        rays = np.stack([(uu - cam.cx) / cam.fx, (vv - cam.cy) / cam.fy, np.ones_like(uu)],
+                        axis=-1)
+        rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
     for t in range(F):
         v_cam = cam.world_to_camera(posed.vertices[t])
         verts = np.concatenate([v_cam, scene_v_cam])
         depth, tri_idx = rasterize(verts, all_tris, cam)
         cos_view = None
-        if noise.grazing_cos > 0:
+        if rays is not None:
             tv = verts[all_tris]
             n = np.cross(tv[:, 1] - tv[:, 0], tv[:, 2] - tv[:, 0])
             n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-            H, W = depth.shape
-            vv, uu = np.mgrid[0:H, 0:W]
-            rays = np.stack([(uu - cam.cx) / cam.fx, (vv - cam.cy) / cam.fy, np.ones_like(uu,
-                            dtype=np.float64)], axis=-1)
-            rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
             hit = tri_idx >= 0
             cos_view = np.ones(depth.shape)
             cos_view[hit] = np.abs(np.einsum("ni,ni->n", n[tri_idx[hit]], rays[hit]))
@@ -354,7 +377,8 @@ def synthesize(
     n_frames
         Number of frames ``F``.
     seed
-        Seeds the motion (procedural figures) and the surface samples.
+        Seeds the motion and the body proportions of procedural figures (``0``: canonical
+        proportions, see :func:`make_figure`) and the surface samples.
     camera
         Intrinsics and optionally the extrinsic; ``None`` is a Kinect v1 at 640x480
         (``Camera.kinect(320)`` for 320x240). Without an extrinsic the camera is placed in

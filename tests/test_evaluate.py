@@ -1,0 +1,236 @@
+"""Tests of pointrig.evaluate (matching, scores, scorable-joint rules, loaders, CLI)."""
+
+from __future__ import annotations
+
+import itertools
+import json
+
+import numpy as np
+import pytest
+
+from pointrig.cli import main
+from pointrig.errors import InputError
+from pointrig.evaluate import (
+    evaluate,
+    evaluate_files,
+    load_prediction,
+    scorable_joints,
+    subject_size,
+)
+from pointrig.skeleton import Skeleton
+from pointrig.synth import Camera, NoiseConfig, synthesize
+from pointrig.synth.figures import rodrigues
+
+
+@pytest.fixture(scope="module")
+def human():
+    return synthesize("human", n_frames=20, seed=1, camera=Camera.kinect(320),
+                      noise=NoiseConfig.clean(), surface_points=2000)
+
+
+def _kw(seq):
+    return dict(surface=seq.surface, surface_labels=seq.surface_labels, skinned=seq.skinned,
+                gt_names=seq.joint_names)
+
+
+def test_ground_truth_plus_1cm_noise(human):
+    rng = np.random.default_rng(0)
+    g = human.gt_joints
+    dirs = rng.normal(size=g.shape)
+    dirs /= np.linalg.norm(dirs, axis=2, keepdims=True)
+    rep = evaluate(g + 0.01 * dirs, g, human.joint_parents, **_kw(human))
+    assert rep.n_scorable >= 10
+    assert rep.recall == 1.0
+    assert rep.raw_error == pytest.approx(0.01, abs=1e-9)  # every offset is exactly 1 cm
+    assert 0.008 < rep.normalized_error <= 0.01 + 1e-9
+    # predicting exactly the scorable joints gives precision 1
+    rep2 = evaluate(g[:, rep.scorable], g, human.joint_parents, **_kw(human))
+    assert rep2.precision == 1.0 and rep2.raw_error < 1e-12
+
+
+def test_single_centroid_joint(human):
+    cen = human.surface.mean(axis=1, keepdims=True)
+    rep = evaluate(cen, human.gt_joints, human.joint_parents, **_kw(human))
+    assert rep.recall <= 1.0 / rep.n_scorable + 1e-12
+    assert rep.n_matched <= 1 and rep.n_pred == 1
+
+
+def test_constant_offset(human):
+    g = human.gt_joints
+    rep = evaluate(g + np.array([0.0, 0.05, 0.0]), g, human.joint_parents, **_kw(human))
+    assert rep.recall == 1.0
+    assert rep.raw_error == pytest.approx(0.05, abs=1e-12)
+    assert rep.normalized_error < 1e-12
+    for row in rep.rows:
+        if row.scorable:
+            assert row.raw_error == pytest.approx(0.05, abs=1e-12)
+
+
+def test_threshold_rule_and_gate(human):
+    s = subject_size(human.gt_joints, human.surface)
+    rep = evaluate(human.gt_joints, human.gt_joints, human.joint_parents, **_kw(human))
+    assert rep.threshold == pytest.approx(0.08 * s)
+    far = human.gt_joints + np.array([0.0, 0.0, 0.08 * s * 1.01])
+    rep_far = evaluate(far, human.gt_joints, human.joint_parents, **_kw(human))
+    # no joint may match its own (shifted) copy; any other match is genuinely within tau
+    for j, row in enumerate(rep_far.rows):
+        assert row.matched != j
+        if row.matched >= 0:
+            assert row.raw_error < rep_far.threshold
+    near = human.gt_joints + np.array([0.0, 0.0, 0.08 * s * 0.99])
+    assert evaluate(near, human.gt_joints, human.joint_parents, **_kw(human)).recall == 1.0
+    assert evaluate(far, human.gt_joints, human.joint_parents, threshold=1.0,
+                    **_kw(human)).recall == 1.0
+
+
+def _brute_force(cost: np.ndarray, tau: float) -> tuple[int, float]:
+    P, J = cost.shape
+    best = (0, 0.0)
+    for k in range(min(P, J), 0, -1):
+        for rows in itertools.permutations(range(P), k):
+            for cols in itertools.combinations(range(J), k):
+                c = cost[list(rows), list(cols)]
+                if (c < tau).all():
+                    tot = float(c.sum())
+                    if k > best[0] or (k == best[0] and tot < best[1]):
+                        best = (k, tot)
+        if best[0] == k:
+            return best
+    return best
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_matching_is_optimal_against_brute_force(seed):
+    rng = np.random.default_rng(seed)
+    F, J, P = 3, 4, int(rng.integers(2, 5))
+    g = rng.random((F, J, 3))
+    p = rng.random((F, P, 3))
+    rep = evaluate(p, g, np.full(J, -1), threshold=0.5)
+    cost = np.linalg.norm(p[:, :, None] - g[:, None], axis=3).mean(0)
+    k, tot = _brute_force(cost, 0.5)
+    assert rep.n_matched == k
+    got = sum(cost[r.matched, j] for j, r in enumerate(rep.rows) if r.matched >= 0)
+    assert got == pytest.approx(tot, abs=1e-12)
+    assert rep.raw_error == pytest.approx(tot / k if k else np.nan, nan_ok=True)
+
+
+def _three_parts():
+    """Five joints on hand-made parts: 0 root (static part), 1 rotates 40 deg about itself,
+    2 is rigidly attached to 1 (no swing), 3 duplicates 1 (same place, same motion, child of 0),
+    4 has no surface samples."""
+    F = 10
+    rng = np.random.default_rng(1)
+    j1 = np.array([0.5, 0.0, 0.0])
+    ang = np.radians(np.linspace(0, 40, F))
+    R = rodrigues(np.array([0.0, 0.0, 1.0]), ang)  # (F, 3, 3)
+    part0 = rng.random((50, 3)) * [0.5, 0.2, 0.2]
+    part1 = j1 + rng.random((50, 3)) * [0.5, 0.1, 0.1]
+    part2 = j1 + [0.5, 0, 0] + rng.random((30, 3)) * [0.2, 0.1, 0.1]
+    part3 = j1 + rng.random((30, 3)) * [0.3, 0.05, 0.05]
+    surf = np.zeros((F, 160, 3))
+    surf[:, :50] = part0
+    for k, part in ((1, part1), (2, part2), (3, part3)):
+        lo = {1: 50, 2: 100, 3: 130}[k]
+        surf[:, lo:lo + len(part)] = np.einsum("fij,mj->fmi", R, part - j1) + j1
+    labels = np.repeat([0, 1, 2, 3], [50, 50, 30, 30])
+    joints = np.zeros((F, 5, 3))
+    joints[:, 1] = j1
+    joints[:, 2] = np.einsum("fij,j->fi", R, [0.5, 0, 0]) + j1
+    joints[:, 3] = j1
+    joints[:, 4] = [0.2, 0.5, 0.0]
+    parents = np.array([-1, 0, 1, 0, 0])
+    return joints, parents, surf, labels
+
+
+def test_scorable_rules():
+    joints, parents, surf, labels = _three_parts()
+    mask, reasons, swing = scorable_joints(joints, parents, surface=surf, surface_labels=labels,
+                                           names=["a", "b", "c", "d", "e"])
+    assert mask.tolist() == [True, True, False, False, False]
+    assert reasons[2].startswith("static") and swing[2] < 1e-9
+    assert reasons[3] == "duplicate of b"
+    assert reasons[4] == "no skin"
+    assert swing[1] > 0.1
+    # without surface samples only the duplicate rule applies
+    mask2, _, _ = scorable_joints(joints, parents)
+    assert mask2.tolist() == [True, True, True, False, True]
+
+
+def test_static_figure_joints_are_not_scored():
+    seq = synthesize("arm", n_frames=8, amplitude=0.0, noise=NoiseConfig.clean(),
+                     camera=Camera.kinect(320))
+    mask, reasons, _ = scorable_joints(seq.gt_joints, seq.joint_parents, surface=seq.surface,
+                                       surface_labels=seq.surface_labels)
+    assert mask.tolist() == [True, False, False]  # root only: nothing articulates
+
+
+def test_malformed_predictions(tmp_path, human):
+    g = human.gt_joints
+    with pytest.raises(InputError, match="shape"):
+        evaluate(g[:, :, :2], g, human.joint_parents)
+    bad = g.copy()
+    bad[3, 2, 1] = np.nan
+    with pytest.raises(InputError, match="NaN"):
+        evaluate(bad, g, human.joint_parents)
+    with pytest.raises(InputError, match="frames"):
+        evaluate(g[:5], g, human.joint_parents, pred_source="pred.json")
+    p = tmp_path / "skeleton.json"
+    p.write_text("{not json")
+    with pytest.raises(InputError, match="skeleton.json"):
+        load_prediction(p)
+    p.write_text(json.dumps({"format": "something/else"}))
+    with pytest.raises(InputError, match="skeleton.json.*format"):
+        load_prediction(p)
+    p.write_text(json.dumps({"format": "pointrig.skeleton/1", "joints": [
+        {"name": "a", "parent": -1, "rest_position": [0, 0, 0]}],
+        "joint_positions": [[[0, 0]]]}))
+    with pytest.raises(InputError, match="skeleton.json"):
+        load_prediction(p)
+    npz = tmp_path / "pred.npz"
+    np.savez(npz, other=np.zeros(3))
+    with pytest.raises(InputError, match="pred.npz"):
+        load_prediction(npz)
+    with pytest.raises(InputError, match="not found"):
+        load_prediction(tmp_path / "none.json")
+
+
+def test_files_and_cli(tmp_path, capsys):
+    seq = synthesize("arm", n_frames=12, seed=3, camera=Camera.kinect(320),
+                     noise=NoiseConfig(seed=2))
+    out = seq.write(tmp_path / "arm")
+    J = len(seq.joint_names)
+    sk = Skeleton(list(seq.joint_names), seq.joint_parents, seq.gt_joints[0],
+                  seq.gt_joints + 0.02, seq.joint_parents[1:],
+                  np.arange(1, J))
+    sk.save_json(tmp_path / "skeleton.json")
+    rep = evaluate_files(tmp_path / "skeleton.json", out)
+    assert rep.recall == 1.0 and rep.raw_error == pytest.approx(np.sqrt(3) * 0.02, abs=1e-5)
+    # frame selection as in `pointrig extract --stride 2`
+    sk2 = Skeleton(list(seq.joint_names), seq.joint_parents, seq.gt_joints[0],
+                   seq.gt_joints[::2], sk.bone_heads, sk.bone_tails)
+    sk2.save_json(tmp_path / "s2.json")
+    assert evaluate_files(tmp_path / "s2.json", out, stride=2).raw_error < 1e-5
+    assert main(["evaluate", str(tmp_path / "skeleton.json"), str(out), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["recall"] == 1.0 and len(doc["joints"]) == J
+    assert main(["evaluate", str(tmp_path / "skeleton.json"), str(out)]) == 0
+    assert "normalised error" in capsys.readouterr().out
+    assert main(["evaluate", str(tmp_path / "s2.json"), str(out)]) == 1
+    assert "s2.json" in capsys.readouterr().err
+
+
+def test_cli_synth_and_preview(tmp_path, capsys):
+    out = tmp_path / "seq"
+    png = tmp_path / "p.png"
+    assert main(["synth", "snake", "-o", str(out), "--frames", "3", "--resolution", "320",
+                 "--preview", str(png)]) == 0
+    assert (out / "gt.npz").exists() and len(list((out / "frames").glob("*.ply"))) == 3
+    from PIL import Image
+
+    with Image.open(png) as im:
+        arr = np.asarray(im)
+    assert arr.shape[0] >= 240 and (arr.std(axis=(0, 1)) > 0).all()
+    assert main(["preview", str(out), "--frame", "2", "-o", str(tmp_path / "q.png")]) == 0
+    assert main(["preview", str(out), "--frame", "7", "-o", str(tmp_path / "r.png")]) == 1
+    assert main(["synth", "unicorn", "-o", str(out)]) == 1
+    assert "unknown source" in capsys.readouterr().err
