@@ -193,3 +193,15 @@ def test_input_errors():
         learn_joints(fig.frames, fig.rest_points[:-1], fig.registered, st)
     with pytest.raises(ConfigError):
         learn_joints(fig.frames, fig.rest_points, fig.registered, st, JointsConfig(mode="x"))
+
+
+def test_estep_kernel_matches_numpy_reference():
+    from pointrig.joints import e_step, e_step_numpy
+
+    fig = make_figure("human", n_frames=2, n_points=500, n_obs=1500)
+    tau = np.array([6e-4, 2e-4])
+    a = e_step(fig.frames, fig.registered, tau, 0.01, 8, 3.5)
+    b = e_step_numpy(fig.frames, fig.registered, tau, 0.01, 200, 3.5)
+    np.testing.assert_allclose(a.P1, b.P1, atol=1e-10)
+    np.testing.assert_allclose(a.PX, b.PX, atol=1e-10)
+    np.testing.assert_allclose(a.Np, b.Np, rtol=1e-10)

@@ -44,7 +44,8 @@ from .config import JointsConfig
 from .errors import ConfigError, InputError
 from .kinematics import joint_trajectories, solve_joint_positions
 
-__all__ = ["JointsResult", "StructureLike", "learn_joints", "e_step", "solve_joints_articulated"]
+__all__ = ["JointsResult", "StructureLike", "learn_joints", "e_step", "e_step_numpy",
+           "solve_joints_articulated"]
 
 log = logging.getLogger(__name__)
 _N_THREADS = max(1, min(4, os.cpu_count() or 1))
@@ -144,11 +145,38 @@ def e_step(
     n_neighbors: int = 8,
     radius_sigmas: float = 3.5,
 ) -> EStats:
+    """Posteriors of Eq. 4 (form of §6.2) per frame, with the Rust GMM kernel
+    (``_core.gmm_estep``, truncated at ``radius_sigmas * sqrt(tau^t)``, rayon inside).
+
+    ``n_neighbors`` is only used by the numpy reference :func:`e_step_numpy`.
+    Shapes: ``frames`` F arrays ``(N_t, 3)``; ``X (F, M, 3)``; ``tau (F,)`` m^2.
+    """
+    F, M, _ = X.shape
+    P1 = np.zeros((F, M))
+    PX = np.zeros((F, M, 3))
+    Np = np.zeros(F)
+    sxx = np.zeros(F)
+    for t in range(F):
+        p1, _, px, stats = _core.gmm_estep(np.ascontiguousarray(X[t]), frames[t], float(tau[t]),
+                                           float(omega), float(radius_sigmas))
+        P1[t], PX[t] = p1, px
+        Np[t], sxx[t] = stats["n_p"], stats["sum_x2"]
+    return EStats(P1, PX, Np, sxx)
+
+
+def e_step_numpy(
+    frames: Sequence[np.ndarray],
+    X: np.ndarray,
+    tau: np.ndarray,
+    omega: float,
+    n_neighbors: int = 8,
+    radius_sigmas: float = 3.5,
+) -> EStats:
     """Posteriors of Eq. 4 (form of §6.2) between deformed points ``X`` and each frame.
 
     Truncated: each observed point only sees its ``n_neighbors`` nearest deformed points within
     ``radius_sigmas * sqrt(tau^t)``; the outlier term ``(2 pi tau)^{3/2} omega M / ((1-omega) N)``
-    is exact. This is the one function to swap for the Rust GMM kernel.
+    is exact. Numpy/scipy reference of :func:`e_step` (k nearest only).
 
     Parameters
     ----------

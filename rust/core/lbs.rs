@@ -69,7 +69,9 @@ fn check_len(name: &str, got: usize, want: usize) -> CoreResult<()> {
 
 fn check_common(q: &[f64], r: &[f64], t: &[f64], d: Dims) -> CoreResult<()> {
     if d.b == 0 || d.m == 0 {
-        return Err(CoreError::InvalidInput("need at least one bone and one point".into()));
+        return Err(CoreError::InvalidInput(
+            "need at least one bone and one point".into(),
+        ));
     }
     check_len("rest points", q.len(), d.m * 3)?;
     check_len("R", r.len(), d.f * d.b * 9)?;
@@ -79,7 +81,9 @@ fn check_common(q: &[f64], r: &[f64], t: &[f64], d: Dims) -> CoreResult<()> {
 
 fn check_weights(sw: &SparseWeights<'_>, d: Dims) -> CoreResult<()> {
     if sw.k == 0 {
-        return Err(CoreError::InvalidInput("weights need at least one slot".into()));
+        return Err(CoreError::InvalidInput(
+            "weights need at least one slot".into(),
+        ));
     }
     check_len("weight indices", sw.idx.len(), d.m * sw.k)?;
     check_len("weights", sw.w.len(), d.m * sw.k)?;
@@ -90,7 +94,9 @@ fn check_weights(sw: &SparseWeights<'_>, d: Dims) -> CoreResult<()> {
         )));
     }
     if sw.w.iter().any(|&v| v < 0.0) {
-        return Err(CoreError::InvalidInput("weights must be non-negative".into()));
+        return Err(CoreError::InvalidInput(
+            "weights must be non-negative".into(),
+        ));
     }
     Ok(())
 }
@@ -99,7 +105,9 @@ fn check_data(a: &[f64], z: &[f64], d: Dims) -> CoreResult<()> {
     check_len("a (data weights)", a.len(), d.f * d.m)?;
     check_len("z (targets)", z.len(), d.f * d.m * 3)?;
     if a.iter().any(|&v| v < 0.0) {
-        return Err(CoreError::InvalidInput("data weights a must be non-negative".into()));
+        return Err(CoreError::InvalidInput(
+            "data weights a must be non-negative".into(),
+        ));
     }
     Ok(())
 }
@@ -115,7 +123,9 @@ pub fn topological_order(parent: &[i64], b: usize) -> CoreResult<Vec<usize>> {
         } else if (p as usize) < b && p as usize != j {
             children[p as usize].push(j);
         } else {
-            return Err(CoreError::InvalidInput(format!("bone_parent[{j}] = {p} is invalid")));
+            return Err(CoreError::InvalidInput(format!(
+                "bone_parent[{j}] = {p} is invalid"
+            )));
         }
     }
     let mut order = Vec::with_capacity(b);
@@ -125,7 +135,9 @@ pub fn topological_order(parent: &[i64], b: usize) -> CoreResult<Vec<usize>> {
         stack.extend(children[j].iter().rev().copied());
     }
     if order.len() != b {
-        return Err(CoreError::InvalidInput("bone_parent contains a cycle".into()));
+        return Err(CoreError::InvalidInput(
+            "bone_parent contains a cycle".into(),
+        ));
     }
     Ok(order)
 }
@@ -173,12 +185,22 @@ fn skin_frame(
 }
 
 /// Linear blend skinning (Eq. 13) of the rest points into every frame: `(F*M*3)`, metres.
-pub fn skin(q: &[f64], sw: SparseWeights<'_>, r: &[f64], t: &[f64], d: Dims) -> CoreResult<Vec<f64>> {
+pub fn skin(
+    q: &[f64],
+    sw: SparseWeights<'_>,
+    r: &[f64],
+    t: &[f64],
+    d: Dims,
+) -> CoreResult<Vec<f64>> {
     check_common(q, r, t, d)?;
     check_weights(&sw, d)?;
     let mut out = vec![0.0; d.f * d.m * 3];
     out.par_chunks_mut(d.m * 3).enumerate().for_each(|(f, o)| {
-        let (rs, ts) = load_frame(&r[f * d.b * 9..(f + 1) * d.b * 9], &t[f * d.b * 3..(f + 1) * d.b * 3], d.b);
+        let (rs, ts) = load_frame(
+            &r[f * d.b * 9..(f + 1) * d.b * 9],
+            &t[f * d.b * 3..(f + 1) * d.b * 3],
+            d.b,
+        );
         skin_frame(q, &sw, &rs, &ts, o);
     });
     Ok(out)
@@ -326,7 +348,12 @@ struct Moments {
 
 impl Moments {
     fn new() -> Self {
-        Moments { sw: 0.0, ss: Vector3::zeros(), sd: Vector3::zeros(), sds: Matrix3::zeros() }
+        Moments {
+            sw: 0.0,
+            ss: Vector3::zeros(),
+            sd: Vector3::zeros(),
+            sds: Matrix3::zeros(),
+        }
     }
     /// Add a correspondence `src -> dst` with weight `om`, given `om * dst` directly.
     #[inline]
@@ -378,7 +405,9 @@ pub fn sweep_paper(
     check_len("T_pre", t_pre.len(), t.len())?;
     check_len("joints", joints.len(), d.b * 3)?;
     if !(alpha >= 0.0 && gamma >= 0.0) {
-        return Err(CoreError::InvalidInput("alpha and gamma must be >= 0".into()));
+        return Err(CoreError::InvalidInput(
+            "alpha and gamma must be >= 0".into(),
+        ));
     }
     let order = topological_order(parent, d.b)?;
     let bp = bone_points(&sw, d);
@@ -394,7 +423,11 @@ pub fn sweep_paper(
         .enumerate()
         .for_each(|(f, (rf, tf))| {
             let (mut rs, mut ts) = load_frame(rf, tf, b);
-            let (rp, tp) = load_frame(&r_pre[f * 9 * b..(f + 1) * 9 * b], &t_pre[f * 3 * b..(f + 1) * 3 * b], b);
+            let (rp, tp) = load_frame(
+                &r_pre[f * 9 * b..(f + 1) * 9 * b],
+                &t_pre[f * 3 * b..(f + 1) * 3 * b],
+                b,
+            );
             let mut x = vec![0.0; m * 3];
             skin_frame(q, &sw, &rs, &ts, &mut x);
             let af = &a[f * m..(f + 1) * m];
@@ -523,7 +556,11 @@ pub fn sweep_articulated(
             let mut pbuf: Vec<(f64, Vector3<f64>)> = Vec::with_capacity(m);
             for &bb in &order {
                 let is_root = parent[bb] < 0;
-                let h = if is_root { Vector3::zeros() } else { rs[bb] * v3(joints, bb) + ts[bb] };
+                let h = if is_root {
+                    Vector3::zeros()
+                } else {
+                    rs[bb] * v3(joints, bb) + ts[bb]
+                };
                 pbuf.clear();
                 let mut mo = Moments::new();
                 for &pm in &sub_points[bb] {
@@ -594,12 +631,17 @@ mod tests {
     }
 
     /// Two-bone chain along x, child rotated about joint (0.5, 0, 0).
+    #[allow(clippy::type_complexity)]
     fn chain(f: usize) -> (Vec<f64>, Vec<f64>, Vec<f64>, Vec<usize>, Vec<f64>, Dims) {
         let m = 40;
         let mut q = Vec::new();
         for i in 0..m {
             let s = i as f64 / (m - 1) as f64;
-            q.extend_from_slice(&[s, 0.05 * ((i * 7) as f64).sin(), 0.05 * ((i * 3) as f64).cos()]);
+            q.extend_from_slice(&[
+                s,
+                0.05 * ((i * 7) as f64).sin(),
+                0.05 * ((i * 3) as f64).cos(),
+            ]);
         }
         let c = Vector3::new(0.5, 0.0, 0.0);
         let mut r = Vec::new();
@@ -639,7 +681,11 @@ mod tests {
     #[test]
     fn weights_recovered_exactly() {
         let (q, r, t, idx, w, d) = chain(5);
-        let sw = SparseWeights { idx: &idx, w: &w, k: 2 };
+        let sw = SparseWeights {
+            idx: &idx,
+            w: &w,
+            k: 2,
+        };
         let x = skin(&q, sw, &r, &t, d).unwrap();
         let a = vec![1.0; d.f * d.m];
         let (idx2, w2, res) = fit_weights(&q, &r, &t, &a, &x, d, 2, None).unwrap();
@@ -655,7 +701,11 @@ mod tests {
     #[test]
     fn sweeps_do_not_increase_energy_and_recover_truth() {
         let (q, r, t, idx, w, d) = chain(4);
-        let sw = SparseWeights { idx: &idx, w: &w, k: 2 };
+        let sw = SparseWeights {
+            idx: &idx,
+            w: &w,
+            k: 2,
+        };
         let z = skin(&q, sw, &r, &t, d).unwrap();
         let a = vec![1.0; d.f * d.m];
         // perturb the child's rotation
@@ -682,7 +732,10 @@ mod tests {
         let (mut ra, mut ta) = (r2.clone(), t2.clone());
         for _ in 0..30 {
             let rp = ra.clone();
-            sweep_articulated(&q, sw, &mut ra, &mut ta, &a, &z, &rp, &parent, &joints, 0.0, d).unwrap();
+            sweep_articulated(
+                &q, sw, &mut ra, &mut ta, &a, &z, &rp, &parent, &joints, 0.0, d,
+            )
+            .unwrap();
             let e = data_energy(&skin(&q, sw, &ra, &ta, d).unwrap(), &a, &z);
             assert!(e <= prev * (1.0 + 1e-12) + 1e-15);
             prev = e;
@@ -692,8 +745,10 @@ mod tests {
         let mut prev = f64::INFINITY;
         for _ in 0..10 {
             let (rpre, tpre) = (rp_.clone(), tp_.clone());
-            sweep_paper(&q, sw, &mut rp_, &mut tp_, &a, &z, &rpre, &tpre, &parent, &joints, 0.0, 0.0, d)
-                .unwrap();
+            sweep_paper(
+                &q, sw, &mut rp_, &mut tp_, &a, &z, &rpre, &tpre, &parent, &joints, 0.0, 0.0, d,
+            )
+            .unwrap();
             let e = data_energy(&skin(&q, sw, &rp_, &tp_, d).unwrap(), &a, &z);
             assert!(e <= prev * (1.0 + 1e-12) + 1e-15);
             prev = e;
@@ -705,8 +760,19 @@ mod tests {
         assert!(topological_order(&[1, 0], 2).is_err());
         assert!(topological_order(&[-1, 5], 2).is_err());
         let q = [0.0; 3];
-        let sw = SparseWeights { idx: &[3], w: &[1.0], k: 1 };
+        let sw = SparseWeights {
+            idx: &[3],
+            w: &[1.0],
+            k: 1,
+        };
         let d = Dims { f: 1, m: 1, b: 1 };
-        assert!(skin(&q, sw, &[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0], &[0.0; 3], d).is_err());
+        assert!(skin(
+            &q,
+            sw,
+            &[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+            &[0.0; 3],
+            d
+        )
+        .is_err());
     }
 }

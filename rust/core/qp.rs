@@ -25,6 +25,7 @@ const FEAS_TOL: f64 = 1e-10;
 
 /// Solve the `n x n` system `a x = b` in place by Gaussian elimination with partial pivoting.
 /// `a` is row-major with stride `MAX_K + 1`. Returns false when singular.
+#[allow(clippy::needless_range_loop)]
 fn solve_small(a: &mut [[f64; MAX_K + 1]; MAX_K + 1], b: &mut [f64; MAX_K + 1], n: usize) -> bool {
     for col in 0..n {
         let mut piv = col;
@@ -90,6 +91,7 @@ pub fn simplex_qp(h: &[f64], g: &[f64], k: usize) -> CoreResult<Vec<f64>> {
 }
 
 /// Allocation-free core of [`simplex_qp`]; inputs must be validated (finite, right sizes).
+#[allow(clippy::needless_range_loop)]
 pub(crate) fn simplex_qp_into(h: &[f64], g: &[f64], k: usize, out: &mut [f64; MAX_K]) {
     let mean_diag = (0..k).map(|i| h[i * k + i].abs()).sum::<f64>() / k as f64;
     let ridge = RIDGE * mean_diag.max(f64::MIN_POSITIVE);
@@ -211,7 +213,9 @@ mod tests {
     fn never_worse_than_random_feasible_points() {
         let mut state = 12345u64;
         let mut rnd = || {
-            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             ((state >> 11) as f64) / ((1u64 << 53) as f64) - 0.5
         };
         for _ in 0..200 {

@@ -5,7 +5,9 @@
 //! `R (F*B, 9)` (row-major 3x3 per frame and bone), translations `T (F*B, 3)`; data weights
 //! `a (F, M)`; targets `z (F*M, 3)`; `bone_parent (B,) int64`; `joints (B, 3)`.
 
-use numpy::{PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
+use numpy::{
+    PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods,
+};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
@@ -21,7 +23,8 @@ fn indices(arr: &PyReadonlyArray2<'_, i64>, name: &str) -> PyResult<(Vec<usize>,
     let out = s
         .iter()
         .map(|&v| {
-            usize::try_from(v).map_err(|_| PyValueError::new_err(format!("{name}: negative index {v}")))
+            usize::try_from(v)
+                .map_err(|_| PyValueError::new_err(format!("{name}: negative index {v}")))
         })
         .collect::<PyResult<Vec<usize>>>()?;
     Ok((out, cols))
@@ -37,7 +40,7 @@ fn parents(arr: &PyReadonlyArray1<'_, i64>) -> PyResult<Vec<i64>> {
 /// Work out (F, M, B) from the bone arrays and check they agree.
 fn dims(q: &[f64], r: &[f64], t: &[f64], n_frames: usize) -> PyResult<Dims> {
     let m = q.len() / 3;
-    if n_frames == 0 || r.len() % (9 * n_frames) != 0 {
+    if n_frames == 0 || !r.len().is_multiple_of(9 * n_frames) {
         return Err(PyValueError::new_err(format!(
             "R: expected shape (F*B, 9) with F = {n_frames}, got {} rows",
             r.len() / 9
@@ -54,6 +57,7 @@ fn dims(q: &[f64], r: &[f64], t: &[f64], n_frames: usize) -> PyResult<Dims> {
     Ok(Dims { f: n_frames, m, b })
 }
 
+#[allow(clippy::type_complexity)]
 fn rt_out<'py>(
     py: Python<'py>,
     r: Vec<f64>,
@@ -80,7 +84,9 @@ fn lbs_skin<'py>(
     let t = points(py, &t, "T")?;
     let d = dims(q, r, t, n_frames)?;
     let sw = SparseWeights { idx: &idx, w, k };
-    let out = py.detach(|| lbs::skin(q, sw, r, t, d)).map_err(|e| to_pyerr(py, e))?;
+    let out = py
+        .detach(|| lbs::skin(q, sw, r, t, d))
+        .map_err(|e| to_pyerr(py, e))?;
     to_array2(py, out, 3)
 }
 
@@ -98,7 +104,11 @@ fn lbs_fit_weights<'py>(
     n_frames: usize,
     k: usize,
     allowed: Option<PyReadonlyArray2<'py, bool>>,
-) -> PyResult<(Bound<'py, PyArray2<i64>>, Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f64>>)> {
+) -> PyResult<(
+    Bound<'py, PyArray2<i64>>,
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray1<f64>>,
+)> {
     let q = points(py, &q, "rest_points")?;
     let r = flat2(py, &r, "R", 9)?;
     let t = points(py, &t, "T")?;
@@ -202,7 +212,9 @@ fn lbs_sweep_articulated<'py>(
     let sw = SparseWeights { idx: &idx, w, k };
     let (mut rr, mut tt) = (r.to_vec(), t.to_vec());
     py.detach(|| {
-        lbs::sweep_articulated(q, sw, &mut rr, &mut tt, a, z, r_pre, &parent, joints, gamma, d)
+        lbs::sweep_articulated(
+            q, sw, &mut rr, &mut tt, a, z, r_pre, &parent, joints, gamma, d,
+        )
     })
     .map_err(|e| to_pyerr(py, e))?;
     rt_out(py, rr, tt)
