@@ -27,6 +27,7 @@ from .errors import (
     TrackingLostError,
 )
 from .io import read_sequence, write_sequence
+from .joints import JointsResult, learn_joints
 from .sequence import PointSequence
 from .skeleton import Skeleton, load_skeleton_json
 from .structure import StructureResult, extract_structure
@@ -41,6 +42,7 @@ __all__ = [
     "FormatError",
     "InputError",
     "JointsConfig",
+    "JointsResult",
     "NumericalError",
     "PipelineConfig",
     "PointSequence",
@@ -52,6 +54,7 @@ __all__ = [
     "StructureResult",
     "TrackingLostError",
     "extract_structure",
+    "learn_joints",
     "load_config",
     "load_skeleton_json",
     "read_sequence",

@@ -49,3 +49,65 @@ def swap_residuals(
 ) -> npt.NDArray[np.float64]:
     """``(P, 2)`` directed halves of the Eq. 15 edge weight for ``pairs (P, 2)``: mean over
     cluster i of its residual under bone j's transforms, and vice versa (m^2)."""
+# --- step 3, LBS-based joint learning (§6.4); R is (F*B, 9) row-major, T (F*B, 3) ---
+def lbs_skin(
+    q: npt.NDArray[np.float64], idx: npt.NDArray[np.int64], w: npt.NDArray[np.float64],
+    r: npt.NDArray[np.float64], t: npt.NDArray[np.float64], n_frames: int,
+) -> npt.NDArray[np.float64]:
+    """LBS (Eq. 13) of ``q (M, 3)`` with sparse weights ``idx, w (M, K)``: ``(F*M, 3)``."""
+def lbs_fit_weights(
+    q: npt.NDArray[np.float64], r: npt.NDArray[np.float64], t: npt.NDArray[np.float64],
+    a: npt.NDArray[np.float64], z: npt.NDArray[np.float64], n_frames: int, k: int,
+    allowed: npt.NDArray[np.bool_] | None = None,
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """Eq. 22 on the reduced data term (weights ``a (F, M)``, targets ``z (F*M, 3)``): the k
+    bones with the smallest residuals (among ``allowed (M, B)``), exact simplex QP.
+    Returns ``idx (M, k)``, ``w (M, k)``, residual ``(M,)``."""
+def lbs_sweep_paper(
+    q: npt.NDArray[np.float64], idx: npt.NDArray[np.int64], w: npt.NDArray[np.float64],
+    r: npt.NDArray[np.float64], t: npt.NDArray[np.float64], a: npt.NDArray[np.float64],
+    z: npt.NDArray[np.float64], r_pre: npt.NDArray[np.float64], t_pre: npt.NDArray[np.float64],
+    bone_parent: npt.NDArray[np.int64], joints: npt.NDArray[np.float64], alpha: float,
+    gamma: float, n_frames: int,
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """One sweep of Eqs. 23-26 over the bones of every frame: new ``(R, T)``."""
+def lbs_sweep_articulated(
+    q: npt.NDArray[np.float64], idx: npt.NDArray[np.int64], w: npt.NDArray[np.float64],
+    r: npt.NDArray[np.float64], t: npt.NDArray[np.float64], a: npt.NDArray[np.float64],
+    z: npt.NDArray[np.float64], r_pre: npt.NDArray[np.float64],
+    bone_parent: npt.NDArray[np.int64], joints: npt.NDArray[np.float64], gamma: float,
+    n_frames: int,
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """Joint-constrained sweep: each bone rotates about its head joint with its subtree."""
+def simplex_qp(h: npt.NDArray[np.float64], g: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """Exact argmin of ``0.5 w'Hw - g'w`` s.t. ``w >= 0, sum w = 1`` (k <= 8)."""
+def gmm_estep(
+    y: npt.NDArray[np.float64],
+    x: npt.NDArray[np.float64],
+    sigma2: float,
+    omega: float,
+    cutoff: float | None = None,
+    single: bool = False,
+) -> tuple[
+    npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64], dict[str, float]
+]:
+    """E-step of Eq. 4 as sufficient statistics, never forming the (M, N) matrix.
+
+    ``y`` (M, 3) are the GMM centroids (template), ``x`` (N, 3) the data, metres;
+    ``p_mi = e_mi / (sum_k e_ki + c0)`` with ``e_mi = exp(-|x_i - y_m|^2 / (2 sigma2))`` and
+    ``c0 = (2 pi sigma2)^{3/2} omega M / ((1 - omega) N)``.
+
+    Returns ``P1 (M,) = P 1``, ``Pt1 (N,) = P^T 1``, ``PX (M, 3) = P X`` (input coordinates),
+    and ``stats``: ``n_p = sum p_mi`` (N_p of Eq. 5b); ``sum_sq = sum p_mi |x_i - y_m|^2``
+    (numerator of Eq. 12, m^2); ``sum_x2 = sum_i Pt1_i |x_i|^2``; ``nll`` = Eq. 3 (negative
+    log-likelihood of the mixture at y, sigma2); ``e_gmm`` = Eq. 5b at y
+    (``sum_sq / (2 sigma2) + 1.5 n_p log sigma2``); ``trunc_bound``; ``n_pairs``.
+
+    ``cutoff=None``: exact dense E-step (float64: ~1e-15 relative). ``cutoff=c``: only pairs
+    with ``|x_i - y_m| < c * sqrt(sigma2)`` count (as if ``e_mi = 0`` beyond), and
+    ``trunc_bound`` is an a-posteriori bound on ``sum_mi |p~_mi - p_mi|`` versus the dense
+    E-step (hence on the L1 error of P1, Pt1, on |dN_p|; |dPX| <= bound * max|x|;
+    |d sum_sq| <= c^2 sigma2 bound). ``single=True`` uses float32 inner loops (~1e-6
+    relative), about 3x faster. Results are bitwise identical for any number of threads.
+    Raises ValueError for sigma2 <= 0, omega outside [0, 1), cutoff <= 0 or bad shapes.
+    """

@@ -132,17 +132,45 @@ class StructureConfig:
 
 @dataclass(frozen=True)
 class JointsConfig:
-    """Step 3, LBS-based joint learning (§6, Eqs. 16-26, Table 1)."""
+    """Step 3, LBS-based joint learning (§6, Eqs. 16-26, Algorithm 2, Table 1).
+
+    Paper parameters keep their Table 1 values. Our deviations (docs/joints.md) are switchable:
+    ``mode="paper"`` runs Algorithm 2 as printed (soft joint term with the growing alpha, Eqs.
+    23-26 per bone, Eq. 20 for the joints); ``mode="articulated"`` (default) enforces the joint
+    constraint exactly and solves the joint positions together with the translations.
+    """
 
     omega: float = 0.01  # omega', outlier weight (Eq. 16), Table 1
     eta: float = 1.0  # boundary-centroid data weight in E_Joint (Eq. 20), Table 1
-    zeta: float = 1e4  # E_Register weight (Eq. 21a), Table 1
-    gamma: float = 0.1  # E_small weight (Eq. 21a), Table 1
-    alpha_growth: float = 1.45  # alpha starts at zeta * M, x1.45 per iteration (§7.2)
-    max_bones_per_point: int = 4  # sparsity of W (Eq. 21b)
+    zeta: float = 1e4  # E_Register weight (Eq. 21a), Table 1; 0 = ablation "without E_Register"
+    gamma: float = 0.1  # E_small weight (Eq. 21a, Eq. 7), Table 1
+    alpha_init: float | None = None  # alpha at iteration 1 (Eq. 21a); None = zeta * M (§7.2)
+    alpha_growth: float = 1.45  # alpha multiplied per iteration (§7.2); 1 = no growth (ablation)
+    max_bones_per_point: int = 4  # sparsity of W, ||W_m.||_0 <= 4 (Eq. 21b)
     tau_init: float = 6e-4  # initial tau^t, m^2 (§7.2)
-    max_iterations: int = 20
-    tolerance: float = 1e-5
+    tau_min: float = 1e-6  # floor on tau^t, m^2 (keeps Eq. 18 finite on noise-free data)
+    max_iterations: int = 20  # Algorithm 2 stops after 20 iterations (§6.4)
+    tolerance: float = 1e-5  # ... or when |dE_Total| / |E_Total| (Eq. 21a) falls below this
+    # --- deviations from the paper (docs/joints.md); "paper" restores Algorithm 2 exactly ---
+    mode: str = "articulated"  # "articulated" (ours) or "paper" (Eqs. 23-26 + Eq. 20)
+    joint_prior: float = 0.01  # articulated mode: weight of eta |c - c~|^2 relative to one
+    #   frame of data on the joint's subtree (the paper's eta acts against F frames in Eq. 20)
+    prior_from_weights: bool = True  # articulated mode: prior target = where the blend weights
+    #   of the two bones cross (centroid weighted by w_mk w_mp) instead of c~, once W blends
+    gmm_density_normalize: bool = True  # scale E_GMM by M / N_t so the data term counts each
+    #   template point once whatever the sensor's point density (False = Eq. 21a as printed)
+    gmm_robust: float = 0.0  # >0: Cauchy down-weighting of GMM targets far (in sqrt(tau)) from y
+    use_gmm: bool = True  # include E_GMM (Eq. 18); False = registered points only (Fig. 4d)
+    weight_candidates: str = "tree"  # Eq. 22 bone choice among "all" bones (paper) or only the
+    #   point's step-2 bone and its tree neighbours ("tree": LBS weights stay local)
+    update_weights: bool = True  # Eq. 22 weight updates (False keeps the step-2 labels)
+    joint_tolerance: float = 5e-4  # also stop when no joint moved more than this (m) in an
+    #   iteration (after min_iterations); 0 = the paper's energy criterion only
+    min_iterations: int = 3
+    bone_sweeps: int = 1  # bone-update sweeps per M-step (Eqs. 23-26)
+    # --- truncated E-step (Eq. 4 restricted to near neighbours) ---
+    estep_neighbors: int = 8  # nearest deformed points considered per observed point
+    estep_radius_sigmas: float = 3.5  # ... and only within this many sqrt(tau^t)
 
 
 @dataclass(frozen=True)

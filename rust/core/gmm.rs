@@ -1,1 +1,691 @@
-//! (filled by its issue)
+//! E-step of the GMM registration (§4.2, Eq. 4) as sufficient statistics.
+//!
+//! The template points `y_m` (M, the GMM centroids) and the data points `x_i` (N, the
+//! observed `v_i`) define the posteriors of Eq. 4,
+//!
+//! ```text
+//! p_mi = e_mi / (S_i + c0),   e_mi = exp(-|x_i - y_m|^2 / (2 sigma^2)),   S_i = sum_m e_mi,
+//! c0   = (2 pi sigma^2)^{3/2} omega M / ((1 - omega) N).
+//! ```
+//!
+//! The M x N matrix is never formed: one pass over the data accumulates
+//! `P1 = P 1` (M), `Pt1 = P^T 1` (N), `PX = P X` (M, 3), `N_p`, `sum_mi p_mi |x_i - y_m|^2`
+//! (Eq. 12 numerator), `sum_i Pt1_i |x_i|^2` and the negative log-likelihood of Eq. 3.
+//!
+//! Dense mode visits every pair. Truncated mode (`cutoff = Some(c)`) keeps only pairs with
+//! `|x_i - y_m| < c sigma` (found with [`crate::core::neighbors::Grid`]) and reports an a
+//! posteriori bound `B >= sum_mi |p~_mi - p_mi|` on the L1 error of the posterior matrix:
+//! per data point, with `k_i` kept pairs, `eps = exp(-c^2/2)`,
+//! `sum_m |p~_mi - p_mi| <= min(2, 2 (M - k_i) eps / (S~_i + c0))`.
+//!
+//! Determinism: data points are split into chunks whose size depends only on N; chunk
+//! partial sums are reduced in chunk order, so results are bitwise identical for any number
+//! of threads. `exp` is a polynomial with Cody-Waite reduction (relative error ~1e-16 in
+//! double, ~2e-7 in single) that returns exactly 0 below the normal range (no subnormals).
+
+#![allow(clippy::needless_range_loop)]
+
+use rayon::prelude::*;
+use std::ops::{Add, Mul, Sub};
+
+use crate::core::error::{CoreError, CoreResult};
+use crate::core::neighbors::Grid;
+
+/// Arithmetic used by the inner loops.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Precision {
+    /// float64 throughout (oracle-exact, ~1e-15 relative).
+    Double,
+    /// float32 distances, exponentials and per-chunk sums; float64 reductions (~1e-6 relative).
+    Single,
+}
+
+/// Scalar statistics of one E-step (all in float64, metres).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct EStepStats {
+    /// `N_p = sum_mi p_mi` (Eq. 5b).
+    pub n_p: f64,
+    /// `sum_mi p_mi |x_i - y_m|^2`, m^2 (numerator of Eq. 12, y = the input template).
+    pub sum_sq: f64,
+    /// `sum_i Pt1_i |x_i|^2`, m^2 (constant of the data term when y moves).
+    pub sum_x2: f64,
+    /// Negative log-likelihood of Eq. 3 at the input `y`, `sigma2`.
+    pub nll: f64,
+    /// `E_GMM` of Eq. 5b at the input `y`: `sum_sq / (2 sigma^2) + (D N_p / 2) log sigma^2`.
+    pub e_gmm: f64,
+    /// A posteriori bound on `sum_mi |p~_mi - p_mi|` (0 in dense mode).
+    pub trunc_bound: f64,
+    /// Number of (m, i) pairs evaluated.
+    pub n_pairs: u64,
+}
+
+/// Sufficient statistics of one E-step.
+#[derive(Debug, Clone, Default)]
+pub struct EStep {
+    /// `P1_m = sum_i p_mi`, (M,).
+    pub p1: Vec<f64>,
+    /// `Pt1_i = sum_m p_mi`, (N,).
+    pub pt1: Vec<f64>,
+    /// `PX_m = sum_i p_mi x_i`, (M, 3) row-major, metres.
+    pub px: Vec<f64>,
+    pub stats: EStepStats,
+}
+
+/// Inner-loop scalar (f32 or f64).
+pub trait Real:
+    Copy
+    + Send
+    + Sync
+    + Default
+    + PartialOrd
+    + Add<Output = Self>
+    + Sub<Output = Self>
+    + Mul<Output = Self>
+{
+    const ZERO: Self;
+    fn from_f64(v: f64) -> Self;
+    fn to_f64(self) -> f64;
+    /// `self * a + b` (fused where the CPU has FMA).
+    fn fma(self, a: Self, b: Self) -> Self;
+    /// `exp(x)` for `x <= 0`; exactly 0 where the result would be subnormal.
+    fn exp_neg(x: Self) -> Self;
+}
+
+impl Real for f64 {
+    const ZERO: f64 = 0.0;
+    #[inline(always)]
+    fn from_f64(v: f64) -> f64 {
+        v
+    }
+    #[inline(always)]
+    fn to_f64(self) -> f64 {
+        self
+    }
+    #[inline(always)]
+    fn fma(self, a: f64, b: f64) -> f64 {
+        self.mul_add(a, b)
+    }
+    #[inline(always)]
+    fn exp_neg(x: f64) -> f64 {
+        const LOW: f64 = -708.0;
+        const LOG2E: f64 = std::f64::consts::LOG2_E;
+        const LN2_HI: f64 = f64::from_bits(0x3fe6_2e42_fee0_0000);
+        const LN2_LO: f64 = f64::from_bits(0x3dea_39ef_3579_3c76);
+        const MAGIC: f64 = 6_755_399_441_055_744.0; // 1.5 * 2^52
+        let xc = if x < LOW { LOW } else { x };
+        let t = xc.mul_add(LOG2E, MAGIC);
+        let kf = t - MAGIC;
+        let k = (t.to_bits() as i64).wrapping_sub(MAGIC.to_bits() as i64);
+        let r = (-kf).mul_add(LN2_LO, (-kf).mul_add(LN2_HI, xc));
+        // Taylor to r^13 / 13!, |r| <= ln2 / 2: truncation error < 2e-17 relative.
+        let mut p: f64 = 1.0 / 6_227_020_800.0;
+        p = p.mul_add(r, 1.0 / 479_001_600.0);
+        p = p.mul_add(r, 1.0 / 39_916_800.0);
+        p = p.mul_add(r, 1.0 / 3_628_800.0);
+        p = p.mul_add(r, 1.0 / 362_880.0);
+        p = p.mul_add(r, 1.0 / 40_320.0);
+        p = p.mul_add(r, 1.0 / 5_040.0);
+        p = p.mul_add(r, 1.0 / 720.0);
+        p = p.mul_add(r, 1.0 / 120.0);
+        p = p.mul_add(r, 1.0 / 24.0);
+        p = p.mul_add(r, 1.0 / 6.0);
+        p = p.mul_add(r, 0.5);
+        p = p.mul_add(r, 1.0);
+        p = p.mul_add(r, 1.0);
+        let scale = f64::from_bits(((k + 1023) as u64) << 52);
+        if x < LOW {
+            0.0
+        } else {
+            p * scale
+        }
+    }
+}
+
+impl Real for f32 {
+    const ZERO: f32 = 0.0;
+    #[inline(always)]
+    fn from_f64(v: f64) -> f32 {
+        v as f32
+    }
+    #[inline(always)]
+    fn to_f64(self) -> f64 {
+        self as f64
+    }
+    #[inline(always)]
+    fn fma(self, a: f32, b: f32) -> f32 {
+        self.mul_add(a, b)
+    }
+    #[inline(always)]
+    fn exp_neg(x: f32) -> f32 {
+        const LOW: f32 = -87.0;
+        const LOG2E: f32 = std::f32::consts::LOG2_E;
+        const LN2_HI: f32 = 0.693_145_75;
+        const LN2_LO: f32 = 1.428_606_8e-6;
+        const MAGIC: f32 = 12_582_912.0; // 1.5 * 2^23
+        let xc = if x < LOW { LOW } else { x };
+        let t = xc.mul_add(LOG2E, MAGIC);
+        let kf = t - MAGIC;
+        let k = (t.to_bits() as i32).wrapping_sub(MAGIC.to_bits() as i32);
+        let r = (-kf).mul_add(LN2_LO, (-kf).mul_add(LN2_HI, xc));
+        let mut p: f32 = 1.0 / 720.0;
+        p = p.mul_add(r, 1.0 / 120.0);
+        p = p.mul_add(r, 1.0 / 24.0);
+        p = p.mul_add(r, 1.0 / 6.0);
+        p = p.mul_add(r, 0.5);
+        p = p.mul_add(r, 1.0);
+        p = p.mul_add(r, 1.0);
+        let scale = f32::from_bits(((k + 127) as u32) << 23);
+        if x < LOW {
+            0.0
+        } else {
+            p * scale
+        }
+    }
+}
+
+/// Template in structure-of-arrays form, centred, in the order used by the accumulators.
+struct Template<T> {
+    yx: Vec<T>,
+    yy: Vec<T>,
+    yz: Vec<T>,
+}
+
+/// Per-chunk partial sums (accumulators in template order of `Template`).
+struct Partial<T> {
+    p1: Vec<T>,
+    px: Vec<T>,
+    py: Vec<T>,
+    pz: Vec<T>,
+    pt1: Vec<f64>,
+    sum_sq: f64,
+    log_den: f64,
+    bound: f64,
+    n_pairs: u64,
+}
+
+impl<T: Real> Partial<T> {
+    fn new(m: usize, n: usize) -> Self {
+        Partial {
+            p1: vec![T::ZERO; m],
+            px: vec![T::ZERO; m],
+            py: vec![T::ZERO; m],
+            pz: vec![T::ZERO; m],
+            pt1: vec![0.0; n],
+            sum_sq: 0.0,
+            log_den: 0.0,
+            bound: 0.0,
+            n_pairs: 0,
+        }
+    }
+}
+
+const LANES: usize = 8;
+const BLOCK: usize = 4;
+
+/// `e[m] = exp(-|y_m - q|^2 inv2s)` (`d2` is scratch); returns `(sum_m e, sum_m e d^2)`.
+#[inline(always)]
+fn exp_row<T: Real>(
+    tpl: &Template<T>,
+    q: [T; 3],
+    inv2s: T,
+    e: &mut [T],
+    d2: &mut [T],
+) -> (f64, f64) {
+    let m = tpl.yx.len();
+    let e = &mut e[..m];
+    let d2 = &mut d2[..m];
+    for (((d, &x), &y), &z) in d2.iter_mut().zip(&tpl.yx).zip(&tpl.yy).zip(&tpl.yz) {
+        let dx = x - q[0];
+        let dy = y - q[1];
+        let dz = z - q[2];
+        *d = dx.fma(dx, dy.fma(dy, dz * dz));
+    }
+    for (o, &d) in e.iter_mut().zip(d2.iter()) {
+        *o = T::exp_neg(T::ZERO - d * inv2s);
+    }
+    let mut s = [T::ZERO; LANES];
+    let mut w = [T::ZERO; LANES];
+    let full = m / LANES * LANES;
+    let (ec, _) = e[..full].as_chunks::<LANES>();
+    let (dc, _) = d2[..full].as_chunks::<LANES>();
+    for (ex, dd) in ec.iter().zip(dc) {
+        for l in 0..LANES {
+            s[l] = s[l] + ex[l];
+            w[l] = ex[l].fma(dd[l], w[l]);
+        }
+    }
+    let mut ss = 0.0;
+    let mut ww = 0.0;
+    for l in 0..LANES {
+        ss += s[l].to_f64();
+        ww += w[l].to_f64();
+    }
+    for k in full..m {
+        ss += e[k].to_f64();
+        ww += (e[k] * d2[k]).to_f64();
+    }
+    (ss, ww)
+}
+
+/// Dense E-step over data points `xs` (centred, flat f64) with global index offset.
+#[inline(always)]
+fn dense_chunk<T: Real>(tpl: &Template<T>, xs: &[f64], inv2s: T, c0: f64) -> Partial<T> {
+    let m = tpl.yx.len();
+    let n = xs.len() / 3;
+    let mut part = Partial::<T>::new(m, n);
+    let mut e = vec![T::ZERO; BLOCK * m];
+    let mut d2 = vec![T::ZERO; m];
+    let mut i0 = 0;
+    while i0 < n {
+        let nb = BLOCK.min(n - i0);
+        let mut inv = [T::ZERO; BLOCK];
+        let mut q = [[T::ZERO; 3]; BLOCK];
+        for b in 0..nb {
+            let i = i0 + b;
+            q[b] = [
+                T::from_f64(xs[3 * i]),
+                T::from_f64(xs[3 * i + 1]),
+                T::from_f64(xs[3 * i + 2]),
+            ];
+            let (s, w) = exp_row(tpl, q[b], inv2s, &mut e[b * m..(b + 1) * m], &mut d2);
+            let den = s + c0;
+            if den > 0.0 {
+                inv[b] = T::from_f64(1.0 / den);
+                part.pt1[i] = s / den;
+                part.sum_sq += w / den;
+                part.log_den += den.ln();
+            } else {
+                part.log_den += f64::NEG_INFINITY;
+            }
+        }
+        for b in nb..BLOCK {
+            e[b * m..(b + 1) * m].fill(T::ZERO);
+        }
+        let (e0, rest) = e.split_at(m);
+        let (e1, rest) = rest.split_at(m);
+        let (e2, e3) = rest.split_at(m);
+        let (i0v, i1v, i2v, i3v) = (inv[0], inv[1], inv[2], inv[3]);
+        let (q0, q1, q2, q3) = (q[0], q[1], q[2], q[3]);
+        let e1 = &e1[..m];
+        let e2 = &e2[..m];
+        let e3 = &e3[..m];
+        let p1 = &mut part.p1[..m];
+        let px = &mut part.px[..m];
+        let py = &mut part.py[..m];
+        let pz = &mut part.pz[..m];
+        for k in 0..m {
+            let a0 = e0[k] * i0v;
+            let a1 = e1[k] * i1v;
+            let a2 = e2[k] * i2v;
+            let a3 = e3[k] * i3v;
+            p1[k] = p1[k] + ((a0 + a1) + (a2 + a3));
+            px[k] = px[k] + ((a0 * q0[0] + a1 * q1[0]) + (a2 * q2[0] + a3 * q3[0]));
+            py[k] = py[k] + ((a0 * q0[1] + a1 * q1[1]) + (a2 * q2[1] + a3 * q3[1]));
+            pz[k] = pz[k] + ((a0 * q0[2] + a1 * q1[2]) + (a2 * q2[2] + a3 * q3[2]));
+        }
+        part.n_pairs += (nb * m) as u64;
+        i0 += nb;
+    }
+    part
+}
+
+/// Truncated E-step: only pairs closer than `radius` (grid over the template, sorted order).
+#[inline(always)]
+fn truncated_chunk<T: Real>(
+    tpl: &Template<T>,
+    grid: &Grid,
+    xs: &[f64],
+    inv2s: T,
+    c0: f64,
+    radius: f64,
+    eps: f64,
+) -> Partial<T> {
+    let m = tpl.yx.len();
+    let n = xs.len() / 3;
+    let mut part = Partial::<T>::new(m, n);
+    let r2 = T::from_f64(radius * radius);
+    let mut kept_k: Vec<u32> = Vec::with_capacity(256);
+    let mut kept_e: Vec<T> = Vec::with_capacity(256);
+    for i in 0..n {
+        let qd = [xs[3 * i], xs[3 * i + 1], xs[3 * i + 2]];
+        let q = [T::from_f64(qd[0]), T::from_f64(qd[1]), T::from_f64(qd[2])];
+        kept_k.clear();
+        kept_e.clear();
+        let mut s = 0.0;
+        let mut w = 0.0;
+        grid.ranges(qd, |lo, hi| {
+            for k in lo..hi {
+                let dx = tpl.yx[k] - q[0];
+                let dy = tpl.yy[k] - q[1];
+                let dz = tpl.yz[k] - q[2];
+                let d2 = dx * dx + dy * dy + dz * dz;
+                if d2 < r2 {
+                    let v = T::exp_neg(T::ZERO - d2 * inv2s);
+                    kept_k.push(k as u32);
+                    kept_e.push(v);
+                    s += v.to_f64();
+                    w += (v * d2).to_f64();
+                }
+            }
+        });
+        let den = s + c0;
+        let dropped = (m - kept_k.len()) as f64;
+        if den > 0.0 {
+            let inv = 1.0 / den;
+            part.pt1[i] = s * inv;
+            part.sum_sq += w * inv;
+            part.log_den += den.ln();
+            part.bound += (2.0 * dropped * eps * inv).min(2.0);
+            let invt = T::from_f64(inv);
+            for (&k, &v) in kept_k.iter().zip(kept_e.iter()) {
+                let k = k as usize;
+                let a = v * invt;
+                part.p1[k] = part.p1[k] + a;
+                part.px[k] = part.px[k] + a * q[0];
+                part.py[k] = part.py[k] + a * q[1];
+                part.pz[k] = part.pz[k] + a * q[2];
+            }
+        } else {
+            part.log_den += f64::NEG_INFINITY;
+            part.bound += if dropped > 0.0 { 2.0 } else { 0.0 };
+        }
+        part.n_pairs += kept_k.len() as u64;
+    }
+    part
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn dense_chunk_avx2<T: Real>(
+    tpl: &Template<T>,
+    xs: &[f64],
+    inv2s: T,
+    c0: f64,
+) -> Partial<T> {
+    dense_chunk(tpl, xs, inv2s, c0)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn truncated_chunk_avx2<T: Real>(
+    tpl: &Template<T>,
+    grid: &Grid,
+    xs: &[f64],
+    inv2s: T,
+    c0: f64,
+    radius: f64,
+    eps: f64,
+) -> Partial<T> {
+    truncated_chunk(tpl, grid, xs, inv2s, c0, radius, eps)
+}
+
+fn has_avx2_fma() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+fn truncated_dispatch<T: Real>(
+    tpl: &Template<T>,
+    grid: &Grid,
+    xs: &[f64],
+    inv2s: T,
+    c0: f64,
+    radius: f64,
+    eps: f64,
+) -> Partial<T> {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if has_avx2_fma() {
+            // SAFETY: the CPU supports the enabled features (checked just above).
+            return unsafe { truncated_chunk_avx2(tpl, grid, xs, inv2s, c0, radius, eps) };
+        }
+    }
+    truncated_chunk(tpl, grid, xs, inv2s, c0, radius, eps)
+}
+
+fn dense_dispatch<T: Real>(tpl: &Template<T>, xs: &[f64], inv2s: T, c0: f64) -> Partial<T> {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if has_avx2_fma() {
+            // SAFETY: the CPU supports the enabled features (checked just above).
+            return unsafe { dense_chunk_avx2(tpl, xs, inv2s, c0) };
+        }
+    }
+    dense_chunk(tpl, xs, inv2s, c0)
+}
+
+/// Data points per chunk: depends on N only (determinism across thread counts).
+fn chunk_len(n: usize) -> usize {
+    256usize.max(n.div_ceil(16))
+}
+
+fn validate(y: &[f64], x: &[f64], sigma2: f64, omega: f64, cutoff: Option<f64>) -> CoreResult<()> {
+    if !y.len().is_multiple_of(3) || !x.len().is_multiple_of(3) {
+        return Err(CoreError::InvalidInput(
+            "points must have shape (n, 3)".into(),
+        ));
+    }
+    if y.is_empty() || x.is_empty() {
+        return Err(CoreError::InvalidInput(
+            "E-step needs at least one template and one data point".into(),
+        ));
+    }
+    if !(sigma2.is_finite() && sigma2 > 0.0) {
+        return Err(CoreError::InvalidInput(format!(
+            "sigma2 must be positive and finite, got {sigma2}"
+        )));
+    }
+    if !(omega.is_finite() && (0.0..1.0).contains(&omega)) {
+        return Err(CoreError::InvalidInput(format!(
+            "omega must be in [0, 1), got {omega}"
+        )));
+    }
+    if let Some(c) = cutoff {
+        if !(c.is_finite() && c > 0.0) {
+            return Err(CoreError::InvalidInput(format!(
+                "cutoff must be positive and finite, got {c}"
+            )));
+        }
+    }
+    Ok(())
+}
+
+fn run<T: Real>(y: &[f64], x: &[f64], sigma2: f64, omega: f64, cutoff: Option<f64>) -> EStep {
+    let m = y.len() / 3;
+    let n = x.len() / 3;
+    // Centre both sets on the template mean (better conditioned single precision).
+    let mut c = [0.0f64; 3];
+    for p in y.chunks_exact(3) {
+        for a in 0..3 {
+            c[a] += p[a];
+        }
+    }
+    for v in &mut c {
+        *v /= m as f64;
+    }
+    let yc: Vec<f64> = y
+        .chunks_exact(3)
+        .flat_map(|p| [p[0] - c[0], p[1] - c[1], p[2] - c[2]])
+        .collect();
+    let xc: Vec<f64> = x
+        .chunks_exact(3)
+        .flat_map(|p| [p[0] - c[0], p[1] - c[1], p[2] - c[2]])
+        .collect();
+
+    let two_pi_s2 = 2.0 * std::f64::consts::PI * sigma2;
+    let c0 = two_pi_s2.powf(1.5) * omega * m as f64 / ((1.0 - omega) * n as f64);
+    let inv2s = T::from_f64(1.0 / (2.0 * sigma2));
+
+    let grid = cutoff.map(|cf| {
+        let radius = cf * sigma2.sqrt();
+        (Grid::new(&yc, radius), radius, (-0.5 * cf * cf).exp())
+    });
+    let order: Vec<usize> = match &grid {
+        Some((g, _, _)) => g.order().iter().map(|&k| k as usize).collect(),
+        None => (0..m).collect(),
+    };
+    let tpl = Template {
+        yx: order.iter().map(|&k| T::from_f64(yc[3 * k])).collect(),
+        yy: order.iter().map(|&k| T::from_f64(yc[3 * k + 1])).collect(),
+        yz: order.iter().map(|&k| T::from_f64(yc[3 * k + 2])).collect(),
+    };
+
+    let cl = chunk_len(n);
+    let parts: Vec<Partial<T>> = xc
+        .par_chunks(3 * cl)
+        .map(|xs| match &grid {
+            None => dense_dispatch(&tpl, xs, inv2s, c0),
+            Some((g, radius, eps)) => truncated_dispatch(&tpl, g, xs, inv2s, c0, *radius, *eps),
+        })
+        .collect();
+
+    let mut p1s = vec![0.0f64; m];
+    let mut pxs = vec![0.0f64; 3 * m];
+    let mut pt1 = Vec::with_capacity(n);
+    let mut stats = EStepStats::default();
+    let mut log_den = 0.0;
+    for part in &parts {
+        for k in 0..m {
+            p1s[k] += part.p1[k].to_f64();
+            pxs[3 * k] += part.px[k].to_f64();
+            pxs[3 * k + 1] += part.py[k].to_f64();
+            pxs[3 * k + 2] += part.pz[k].to_f64();
+        }
+        pt1.extend_from_slice(&part.pt1);
+        stats.sum_sq += part.sum_sq;
+        log_den += part.log_den;
+        stats.trunc_bound += part.bound;
+        stats.n_pairs += part.n_pairs;
+    }
+    // Back to input order and input coordinates (PX = P (Xc + c) = P Xc + P1 c).
+    let mut p1 = vec![0.0f64; m];
+    let mut px = vec![0.0f64; 3 * m];
+    for (s, &k) in order.iter().enumerate() {
+        p1[k] = p1s[s];
+        for a in 0..3 {
+            px[3 * k + a] = pxs[3 * s + a] + p1s[s] * c[a];
+        }
+    }
+    stats.n_p = pt1.iter().sum();
+    stats.sum_x2 = pt1
+        .iter()
+        .zip(x.chunks_exact(3))
+        .map(|(w, p)| w * (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]))
+        .sum();
+    let log_norm = ((1.0 - omega) / (m as f64 * two_pi_s2.powf(1.5))).ln();
+    stats.nll = -log_den - n as f64 * log_norm;
+    stats.e_gmm = stats.sum_sq / (2.0 * sigma2) + 1.5 * stats.n_p * sigma2.ln();
+    EStep { p1, pt1, px, stats }
+}
+
+/// E-step sufficient statistics (Eq. 4) of template `y` (flat `(M, 3)`) against data `x`
+/// (flat `(N, 3)`), metres.
+///
+/// `cutoff = Some(c)` keeps only pairs with `|x_i - y_m| < c * sigma` (see module docs for
+/// the error bound); `None` is the exact dense E-step.
+pub fn estep(
+    y: &[f64],
+    x: &[f64],
+    sigma2: f64,
+    omega: f64,
+    cutoff: Option<f64>,
+    precision: Precision,
+) -> CoreResult<EStep> {
+    validate(y, x, sigma2, omega, cutoff)?;
+    Ok(match precision {
+        Precision::Double => run::<f64>(y, x, sigma2, omega, cutoff),
+        Precision::Single => run::<f32>(y, x, sigma2, omega, cutoff),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cloud(n: usize, seed: f64) -> Vec<f64> {
+        (0..3 * n)
+            .map(|i| ((i as f64 + seed) * 0.754_877_666).fract() * 0.3)
+            .collect()
+    }
+
+    fn brute(y: &[f64], x: &[f64], s2: f64, w: f64) -> (Vec<f64>, Vec<f64>, f64) {
+        let (m, n) = (y.len() / 3, x.len() / 3);
+        let c0 =
+            (2.0 * std::f64::consts::PI * s2).powf(1.5) * w * m as f64 / ((1.0 - w) * n as f64);
+        let mut p1 = vec![0.0; m];
+        let mut pt1 = vec![0.0; n];
+        let mut ss = 0.0;
+        for i in 0..n {
+            let e: Vec<f64> = (0..m)
+                .map(|k| {
+                    let d2: f64 = (0..3).map(|a| (x[3 * i + a] - y[3 * k + a]).powi(2)).sum();
+                    (-d2 / (2.0 * s2)).exp()
+                })
+                .collect();
+            let den: f64 = e.iter().sum::<f64>() + c0;
+            for k in 0..m {
+                let d2: f64 = (0..3).map(|a| (x[3 * i + a] - y[3 * k + a]).powi(2)).sum();
+                p1[k] += e[k] / den;
+                pt1[i] += e[k] / den;
+                ss += e[k] / den * d2;
+            }
+        }
+        (p1, pt1, ss)
+    }
+
+    #[test]
+    fn exp_matches_std() {
+        for i in 0..2000 {
+            let x = -(i as f64) * 0.37;
+            let e = <f64 as Real>::exp_neg(x);
+            let r = x.exp();
+            if x < -708.0 {
+                assert_eq!(e, 0.0);
+            } else {
+                assert!((e - r).abs() <= 4e-16 * r, "{x} {e} {r}");
+            }
+            let xf = x as f32;
+            let ef = <f32 as Real>::exp_neg(xf) as f64;
+            let rf = (xf as f64).exp();
+            if xf < -87.0 {
+                assert_eq!(ef, 0.0);
+            } else {
+                assert!((ef - rf).abs() <= 5e-7 * rf, "{xf} {ef} {rf}");
+            }
+        }
+    }
+
+    #[test]
+    fn dense_matches_brute_force_and_is_thread_independent() {
+        let y = cloud(300, 0.1);
+        let x = cloud(700, 7.3);
+        let (p1, pt1, ss) = brute(&y, &x, 0.003, 0.1);
+        let r = estep(&y, &x, 0.003, 0.1, None, Precision::Double).unwrap();
+        for k in 0..p1.len() {
+            assert!((r.p1[k] - p1[k]).abs() < 1e-12);
+        }
+        for i in 0..pt1.len() {
+            assert!((r.pt1[i] - pt1[i]).abs() < 1e-12);
+        }
+        assert!((r.stats.sum_sq - ss).abs() < 1e-12 * ss.max(1.0));
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap();
+        let r1 = pool.install(|| estep(&y, &x, 0.003, 0.1, Some(3.0), Precision::Single).unwrap());
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(3)
+            .build()
+            .unwrap();
+        let r3 = pool.install(|| estep(&y, &x, 0.003, 0.1, Some(3.0), Precision::Single).unwrap());
+        assert_eq!(r1.p1, r3.p1);
+        assert_eq!(r1.px, r3.px);
+        assert_eq!(r1.stats, r3.stats);
+    }
+}

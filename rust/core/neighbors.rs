@@ -1,1 +1,163 @@
-//! (filled by its issue)
+//! Uniform spatial grid for fixed-radius neighbour queries (the truncated E-step, §4.2).
+//!
+//! The grid buckets `(n, 3)` points into cubic cells of side `h >= radius` with a counting
+//! sort, so every point within `radius` of a query lies in the 3 x 3 x 3 block of cells
+//! around the query's cell. Along x the three cells of a block row are consecutive in the
+//! sorted order, so a query visits at most 9 contiguous index ranges.
+
+/// Cap on the number of cells; the cell side grows when the bounding box would need more.
+const MAX_CELLS: usize = 1 << 22;
+
+/// Points bucketed by cell. `order[start[c]..start[c + 1]]` are the indices of the points in
+/// cell `c = (iz * ny + iy) * nx + ix`.
+#[derive(Debug, Clone)]
+pub struct Grid {
+    origin: [f64; 3],
+    inv_h: f64,
+    dims: [usize; 3],
+    start: Vec<u32>,
+    order: Vec<u32>,
+}
+
+impl Grid {
+    /// Bucket `points` (flat row-major `(n, 3)`, finite) into cells of side at least `h`.
+    ///
+    /// `h` must be positive and finite; it is enlarged when the bounding box would need more
+    /// than `MAX_CELLS` cells (queries stay exact, only slower).
+    pub fn new(points: &[f64], h: f64) -> Grid {
+        let n = points.len() / 3;
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for p in points.chunks_exact(3) {
+            for a in 0..3 {
+                lo[a] = lo[a].min(p[a]);
+                hi[a] = hi[a].max(p[a]);
+            }
+        }
+        if n == 0 {
+            lo = [0.0; 3];
+            hi = [0.0; 3];
+        }
+        let mut h = if h.is_finite() && h > 0.0 { h } else { 1.0 };
+        let dims_for = |h: f64| -> [usize; 3] {
+            let mut d = [1usize; 3];
+            for a in 0..3 {
+                d[a] = ((hi[a] - lo[a]) / h).floor() as usize + 1;
+            }
+            d
+        };
+        let mut dims = dims_for(h);
+        while dims[0].saturating_mul(dims[1]).saturating_mul(dims[2]) > MAX_CELLS {
+            h *= 2.0;
+            dims = dims_for(h);
+        }
+        let inv_h = 1.0 / h;
+        let ncell = dims[0] * dims[1] * dims[2];
+        let cell_of = |p: &[f64]| -> usize {
+            let mut c = [0usize; 3];
+            for a in 0..3 {
+                let v = ((p[a] - lo[a]) * inv_h).floor();
+                c[a] = (v.max(0.0) as usize).min(dims[a] - 1);
+            }
+            (c[2] * dims[1] + c[1]) * dims[0] + c[0]
+        };
+        let cells: Vec<usize> = points.chunks_exact(3).map(cell_of).collect();
+        let mut start = vec![0u32; ncell + 1];
+        for &c in &cells {
+            start[c + 1] += 1;
+        }
+        for c in 0..ncell {
+            start[c + 1] += start[c];
+        }
+        let mut fill = start.clone();
+        let mut order = vec![0u32; n];
+        for (i, &c) in cells.iter().enumerate() {
+            order[fill[c] as usize] = i as u32;
+            fill[c] += 1;
+        }
+        Grid {
+            origin: lo,
+            inv_h,
+            dims,
+            start,
+            order,
+        }
+    }
+
+    /// Point indices in sorted (cell) order; ranges from [`Grid::ranges`] index into this.
+    pub fn order(&self) -> &[u32] {
+        &self.order
+    }
+
+    /// The side of a cell (at least the `h` asked for).
+    pub fn cell_size(&self) -> f64 {
+        1.0 / self.inv_h
+    }
+
+    /// Call `f(lo, hi)` for each contiguous range `order[lo..hi]` of points in the 3 x 3 x 3
+    /// cells around `q`: a superset of the points within one cell size of `q`.
+    #[inline]
+    pub fn ranges(&self, q: [f64; 3], mut f: impl FnMut(usize, usize)) {
+        let mut c = [0i64; 3];
+        for a in 0..3 {
+            let v = ((q[a] - self.origin[a]) * self.inv_h).floor();
+            // Far outside the box: no cell within reach on this axis.
+            if v < -1.0 || v > self.dims[a] as f64 {
+                return;
+            }
+            c[a] = v as i64;
+        }
+        let (nx, ny, nz) = (
+            self.dims[0] as i64,
+            self.dims[1] as i64,
+            self.dims[2] as i64,
+        );
+        let x0 = (c[0] - 1).max(0);
+        let x1 = (c[0] + 1).min(nx - 1);
+        if x0 > x1 {
+            return;
+        }
+        for z in (c[2] - 1).max(0)..=(c[2] + 1).min(nz - 1) {
+            for y in (c[1] - 1).max(0)..=(c[1] + 1).min(ny - 1) {
+                let row = (z * ny + y) * nx;
+                let lo = self.start[(row + x0) as usize] as usize;
+                let hi = self.start[(row + x1 + 1) as usize] as usize;
+                if hi > lo {
+                    f(lo, hi);
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn radius_query_matches_brute_force() {
+        let pts: Vec<f64> = (0..3000)
+            .map(|i| ((i as f64) * 0.618_033_988_7).fract() * 2.0 - 1.0)
+            .collect();
+        let r = 0.2;
+        let g = Grid::new(&pts, r);
+        for q in pts.chunks_exact(3).take(50) {
+            let q = [q[0] + 0.05, q[1], q[2] - 0.03];
+            let mut found = vec![];
+            g.ranges(q, |lo, hi| {
+                for k in lo..hi {
+                    let i = g.order()[k] as usize;
+                    let d2: f64 = (0..3).map(|a| (pts[3 * i + a] - q[a]).powi(2)).sum();
+                    if d2 < r * r {
+                        found.push(i);
+                    }
+                }
+            });
+            found.sort();
+            let brute: Vec<usize> = (0..pts.len() / 3)
+                .filter(|&i| (0..3).map(|a| (pts[3 * i + a] - q[a]).powi(2)).sum::<f64>() < r * r)
+                .collect();
+            assert_eq!(found, brute);
+        }
+    }
+}

@@ -1,7 +1,244 @@
-//! Bindings for this pipeline step (filled by its issue).
+//! Bindings for step 3, LBS-based joint learning (§6.4): skinning, weight QP, bone sweeps.
+//!
+//! Shapes crossing the boundary (all float64 C-contiguous unless stated):
+//! rest points `q (M, 3)`; sparse weights `idx (M, K) int64`, `w (M, K)`; rotations
+//! `R (F*B, 9)` (row-major 3x3 per frame and bone), translations `T (F*B, 3)`; data weights
+//! `a (F, M)`; targets `z (F*M, 3)`; `bone_parent (B,) int64`; `joints (B, 3)`.
 
+use numpy::{
+    PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods,
+};
+use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
-pub(crate) fn register(_m: &Bound<'_, PyModule>) -> PyResult<()> {
+use super::{flat1, flat2, points, to_array2, to_pyerr};
+use crate::core::lbs::{self, Dims, SparseWeights};
+use crate::core::qp;
+
+fn indices(arr: &PyReadonlyArray2<'_, i64>, name: &str) -> PyResult<(Vec<usize>, usize)> {
+    let cols = arr.shape()[1];
+    let s = arr
+        .as_slice()
+        .map_err(|_| PyValueError::new_err(format!("{name}: array must be C-contiguous")))?;
+    let out = s
+        .iter()
+        .map(|&v| {
+            usize::try_from(v)
+                .map_err(|_| PyValueError::new_err(format!("{name}: negative index {v}")))
+        })
+        .collect::<PyResult<Vec<usize>>>()?;
+    Ok((out, cols))
+}
+
+fn parents(arr: &PyReadonlyArray1<'_, i64>) -> PyResult<Vec<i64>> {
+    Ok(arr
+        .as_slice()
+        .map_err(|_| PyValueError::new_err("bone_parent: array must be contiguous"))?
+        .to_vec())
+}
+
+/// Work out (F, M, B) from the bone arrays and check they agree.
+fn dims(q: &[f64], r: &[f64], t: &[f64], n_frames: usize) -> PyResult<Dims> {
+    let m = q.len() / 3;
+    if n_frames == 0 || !r.len().is_multiple_of(9 * n_frames) {
+        return Err(PyValueError::new_err(format!(
+            "R: expected shape (F*B, 9) with F = {n_frames}, got {} rows",
+            r.len() / 9
+        )));
+    }
+    let b = r.len() / (9 * n_frames);
+    if t.len() != 3 * b * n_frames {
+        return Err(PyValueError::new_err(format!(
+            "T: expected shape ({}, 3), got ({}, 3)",
+            b * n_frames,
+            t.len() / 3
+        )));
+    }
+    Ok(Dims { f: n_frames, m, b })
+}
+
+#[allow(clippy::type_complexity)]
+fn rt_out<'py>(
+    py: Python<'py>,
+    r: Vec<f64>,
+    t: Vec<f64>,
+) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>)> {
+    Ok((to_array2(py, r, 9)?, to_array2(py, t, 3)?))
+}
+
+/// Linear blend skinning (Eq. 13) into every frame: returns `(F*M, 3)`.
+#[pyfunction]
+fn lbs_skin<'py>(
+    py: Python<'py>,
+    q: PyReadonlyArray2<'py, f64>,
+    idx: PyReadonlyArray2<'py, i64>,
+    w: PyReadonlyArray2<'py, f64>,
+    r: PyReadonlyArray2<'py, f64>,
+    t: PyReadonlyArray2<'py, f64>,
+    n_frames: usize,
+) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    let q = points(py, &q, "rest_points")?;
+    let (idx, k) = indices(&idx, "idx")?;
+    let w = flat2(py, &w, "w", k)?;
+    let r = flat2(py, &r, "R", 9)?;
+    let t = points(py, &t, "T")?;
+    let d = dims(q, r, t, n_frames)?;
+    let sw = SparseWeights { idx: &idx, w, k };
+    let out = py
+        .detach(|| lbs::skin(q, sw, r, t, d))
+        .map_err(|e| to_pyerr(py, e))?;
+    to_array2(py, out, 3)
+}
+
+/// Point weights by Eq. (22): returns `idx (M, k) int64, w (M, k), residual (M,)`.
+#[pyfunction]
+#[pyo3(signature = (q, r, t, a, z, n_frames, k, allowed=None))]
+#[allow(clippy::too_many_arguments, clippy::type_complexity)]
+fn lbs_fit_weights<'py>(
+    py: Python<'py>,
+    q: PyReadonlyArray2<'py, f64>,
+    r: PyReadonlyArray2<'py, f64>,
+    t: PyReadonlyArray2<'py, f64>,
+    a: PyReadonlyArray2<'py, f64>,
+    z: PyReadonlyArray2<'py, f64>,
+    n_frames: usize,
+    k: usize,
+    allowed: Option<PyReadonlyArray2<'py, bool>>,
+) -> PyResult<(
+    Bound<'py, PyArray2<i64>>,
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray1<f64>>,
+)> {
+    let q = points(py, &q, "rest_points")?;
+    let r = flat2(py, &r, "R", 9)?;
+    let t = points(py, &t, "T")?;
+    let d = dims(q, r, t, n_frames)?;
+    let a = flat2(py, &a, "a", d.m)?;
+    let z = points(py, &z, "z")?;
+    let al = match &allowed {
+        Some(al) => Some(
+            al.as_slice()
+                .map_err(|_| PyValueError::new_err("allowed: array must be C-contiguous"))?
+                .to_vec(),
+        ),
+        None => None,
+    };
+    let (idx, w, res) = py
+        .detach(|| lbs::fit_weights(q, r, t, a, z, d, k, al.as_deref()))
+        .map_err(|e| to_pyerr(py, e))?;
+    let idx: Vec<i64> = idx.into_iter().map(|v| v as i64).collect();
+    let idx = PyArray1::from_vec(py, idx).reshape([d.m, k])?;
+    Ok((idx, to_array2(py, w, k)?, PyArray1::from_vec(py, res)))
+}
+
+/// The paper's bone update (Eqs. 23-26) in every frame: returns new `(R, T)`.
+#[pyfunction]
+#[allow(clippy::too_many_arguments, clippy::type_complexity)]
+fn lbs_sweep_paper<'py>(
+    py: Python<'py>,
+    q: PyReadonlyArray2<'py, f64>,
+    idx: PyReadonlyArray2<'py, i64>,
+    w: PyReadonlyArray2<'py, f64>,
+    r: PyReadonlyArray2<'py, f64>,
+    t: PyReadonlyArray2<'py, f64>,
+    a: PyReadonlyArray2<'py, f64>,
+    z: PyReadonlyArray2<'py, f64>,
+    r_pre: PyReadonlyArray2<'py, f64>,
+    t_pre: PyReadonlyArray2<'py, f64>,
+    bone_parent: PyReadonlyArray1<'py, i64>,
+    joints: PyReadonlyArray2<'py, f64>,
+    alpha: f64,
+    gamma: f64,
+    n_frames: usize,
+) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>)> {
+    let q = points(py, &q, "rest_points")?;
+    let (idx, k) = indices(&idx, "idx")?;
+    let w = flat2(py, &w, "w", k)?;
+    let r = flat2(py, &r, "R", 9)?;
+    let t = points(py, &t, "T")?;
+    let d = dims(q, r, t, n_frames)?;
+    let a = flat2(py, &a, "a", d.m)?;
+    let z = points(py, &z, "z")?;
+    let r_pre = flat2(py, &r_pre, "R_pre", 9)?;
+    let t_pre = points(py, &t_pre, "T_pre")?;
+    let parent = parents(&bone_parent)?;
+    let joints = points(py, &joints, "joints")?;
+    if !alpha.is_finite() || !gamma.is_finite() {
+        return Err(PyValueError::new_err("alpha and gamma must be finite"));
+    }
+    let sw = SparseWeights { idx: &idx, w, k };
+    let (mut rr, mut tt) = (r.to_vec(), t.to_vec());
+    py.detach(|| {
+        lbs::sweep_paper(
+            q, sw, &mut rr, &mut tt, a, z, r_pre, t_pre, &parent, joints, alpha, gamma, d,
+        )
+    })
+    .map_err(|e| to_pyerr(py, e))?;
+    rt_out(py, rr, tt)
+}
+
+/// Joint-constrained bone update (our deviation, docs/joints.md): returns new `(R, T)`.
+#[pyfunction]
+#[allow(clippy::too_many_arguments, clippy::type_complexity)]
+fn lbs_sweep_articulated<'py>(
+    py: Python<'py>,
+    q: PyReadonlyArray2<'py, f64>,
+    idx: PyReadonlyArray2<'py, i64>,
+    w: PyReadonlyArray2<'py, f64>,
+    r: PyReadonlyArray2<'py, f64>,
+    t: PyReadonlyArray2<'py, f64>,
+    a: PyReadonlyArray2<'py, f64>,
+    z: PyReadonlyArray2<'py, f64>,
+    r_pre: PyReadonlyArray2<'py, f64>,
+    bone_parent: PyReadonlyArray1<'py, i64>,
+    joints: PyReadonlyArray2<'py, f64>,
+    gamma: f64,
+    n_frames: usize,
+) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>)> {
+    let q = points(py, &q, "rest_points")?;
+    let (idx, k) = indices(&idx, "idx")?;
+    let w = flat2(py, &w, "w", k)?;
+    let r = flat2(py, &r, "R", 9)?;
+    let t = points(py, &t, "T")?;
+    let d = dims(q, r, t, n_frames)?;
+    let a = flat2(py, &a, "a", d.m)?;
+    let z = points(py, &z, "z")?;
+    let r_pre = flat2(py, &r_pre, "R_pre", 9)?;
+    let parent = parents(&bone_parent)?;
+    let joints = points(py, &joints, "joints")?;
+    if !gamma.is_finite() {
+        return Err(PyValueError::new_err("gamma must be finite"));
+    }
+    let sw = SparseWeights { idx: &idx, w, k };
+    let (mut rr, mut tt) = (r.to_vec(), t.to_vec());
+    py.detach(|| {
+        lbs::sweep_articulated(
+            q, sw, &mut rr, &mut tt, a, z, r_pre, &parent, joints, gamma, d,
+        )
+    })
+    .map_err(|e| to_pyerr(py, e))?;
+    rt_out(py, rr, tt)
+}
+
+/// Exact minimiser of `0.5 w^T H w - g^T w` on the probability simplex (Eq. 22, k <= 8).
+#[pyfunction]
+fn simplex_qp<'py>(
+    py: Python<'py>,
+    h: PyReadonlyArray2<'py, f64>,
+    g: PyReadonlyArray1<'py, f64>,
+) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    let g = flat1(py, &g, "g")?;
+    let k = g.len();
+    let h = flat2(py, &h, "H", k)?;
+    let w = qp::simplex_qp(h, g, k).map_err(|e| to_pyerr(py, e))?;
+    Ok(PyArray1::from_vec(py, w))
+}
+
+pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(lbs_skin, m)?)?;
+    m.add_function(wrap_pyfunction!(lbs_fit_weights, m)?)?;
+    m.add_function(wrap_pyfunction!(lbs_sweep_paper, m)?)?;
+    m.add_function(wrap_pyfunction!(lbs_sweep_articulated, m)?)?;
+    m.add_function(wrap_pyfunction!(simplex_qp, m)?)?;
     Ok(())
 }

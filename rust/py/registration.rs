@@ -1,7 +1,412 @@
-//! Bindings for this pipeline step (filled by its issue).
+//! Bindings for step 1, non-rigid registration (§4): the E-step sufficient statistics and
+//! the deformation graph (`DeformGraph`) with its M-step solvers and per-frame EM.
 
+use nalgebra::{Matrix3, Vector3};
+use numpy::{
+    PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2,
+    PyReadonlyArray3, PyUntypedArrayMethods,
+};
+use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
+use pyo3::types::PyDict;
 
-pub(crate) fn register(_m: &Bound<'_, PyModule>) -> PyResult<()> {
+use super::{flat1, flat2, points, to_array2, to_pyerr};
+use crate::core::deform::{self, DataTerm, FrameParams, Graph, NodeState, Solver, Weights};
+use crate::core::error::check_finite;
+use crate::core::gmm::{self, Precision};
+
+fn read_state(
+    py: Python<'_>,
+    r: &PyReadonlyArray3<'_, f64>,
+    t: &PyReadonlyArray2<'_, f64>,
+    j: usize,
+) -> PyResult<NodeState> {
+    let rs = r.shape();
+    if rs[0] != j || rs[1] != 3 || rs[2] != 3 {
+        return Err(PyValueError::new_err(format!(
+            "R must have shape ({j}, 3, 3)"
+        )));
+    }
+    let rsl = r
+        .as_slice()
+        .map_err(|_| PyValueError::new_err("R must be C-contiguous"))?;
+    check_finite("R", rsl).map_err(|e| to_pyerr(py, e))?;
+    let tsl = points(py, t, "T")?;
+    if tsl.len() != 3 * j {
+        return Err(PyValueError::new_err(format!("T must have shape ({j}, 3)")));
+    }
+    Ok(NodeState {
+        r: rsl.chunks_exact(9).map(Matrix3::from_row_slice).collect(),
+        t: tsl
+            .chunks_exact(3)
+            .map(|c| Vector3::new(c[0], c[1], c[2]))
+            .collect(),
+    })
+}
+
+fn write_state<'py>(
+    py: Python<'py>,
+    st: &NodeState,
+) -> PyResult<(Bound<'py, PyArray3<f64>>, Bound<'py, PyArray2<f64>>)> {
+    let j = st.r.len();
+    let r: Vec<f64> =
+        st.r.iter()
+            .flat_map(|m| (0..3).flat_map(move |a| (0..3).map(move |b| m[(a, b)])))
+            .collect();
+    let t: Vec<f64> = st.t.iter().flat_map(|v| [v.x, v.y, v.z]).collect();
+    Ok((
+        PyArray1::from_vec(py, r).reshape([j, 3, 3])?,
+        to_array2(py, t, 3)?,
+    ))
+}
+
+fn vec_points<'py>(py: Python<'py>, y: &[Vector3<f64>]) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    to_array2(py, y.iter().flat_map(|v| [v.x, v.y, v.z]).collect(), 3)
+}
+
+/// The embedded deformation graph of Eq. 2 (rest points, nodes, point-node weights,
+/// node-node edges of Eq. 6) with the M-step solvers and one-frame EM (Algorithm 1).
+#[pyclass(module = "pointrig._core", frozen)]
+struct DeformGraph {
+    g: Graph,
+}
+
+#[pymethods]
+impl DeformGraph {
+    #[new]
+    fn new(
+        py: Python<'_>,
+        rest: PyReadonlyArray2<'_, f64>,
+        nodes: PyReadonlyArray2<'_, f64>,
+        pn_idx: PyReadonlyArray2<'_, i64>,
+        pn_w: PyReadonlyArray2<'_, f64>,
+        edges: PyReadonlyArray2<'_, i64>,
+    ) -> PyResult<Self> {
+        let r = points(py, &rest, "rest")?;
+        let n = points(py, &nodes, "nodes")?;
+        let k = pn_idx.shape()[1];
+        let w = flat2(py, &pn_w, "pn_w", k)?;
+        let idx = pn_idx
+            .as_slice()
+            .map_err(|_| PyValueError::new_err("pn_idx must be C-contiguous"))?;
+        if edges.shape()[1] != 2 {
+            return Err(PyValueError::new_err("edges must have shape (E, 2)"));
+        }
+        let e = edges
+            .as_slice()
+            .map_err(|_| PyValueError::new_err("edges must be C-contiguous"))?;
+        let g = Graph::new(r, n, idx, w, k, e).map_err(|e| to_pyerr(py, e))?;
+        Ok(DeformGraph { g })
+    }
+
+    #[getter]
+    fn n_nodes(&self) -> usize {
+        self.g.n_nodes()
+    }
+    #[getter]
+    fn n_points(&self) -> usize {
+        self.g.n_points()
+    }
+    #[getter]
+    fn n_edges(&self) -> usize {
+        self.g.n_edges()
+    }
+
+    /// Deformed points (Eq. 2), (M, 3).
+    fn deform<'py>(
+        &self,
+        py: Python<'py>,
+        r: PyReadonlyArray3<'py, f64>,
+        t: PyReadonlyArray2<'py, f64>,
+    ) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let st = read_state(py, &r, &t, self.g.n_nodes())?;
+        let y = py.detach(|| self.g.deform(&st));
+        vec_points(py, &y)
+    }
+
+    /// Eq. 8a from the E-step statistics.
+    #[allow(clippy::too_many_arguments)]
+    #[pyo3(signature = (r, t, r_pre, t_pre, p1, px, sum_x2, n_p, sigma2, beta_smooth, beta_small))]
+    fn energy(
+        &self,
+        py: Python<'_>,
+        r: PyReadonlyArray3<'_, f64>,
+        t: PyReadonlyArray2<'_, f64>,
+        r_pre: PyReadonlyArray3<'_, f64>,
+        t_pre: PyReadonlyArray2<'_, f64>,
+        p1: PyReadonlyArray1<'_, f64>,
+        px: PyReadonlyArray2<'_, f64>,
+        sum_x2: f64,
+        n_p: f64,
+        sigma2: f64,
+        beta_smooth: f64,
+        beta_small: f64,
+    ) -> PyResult<f64> {
+        let j = self.g.n_nodes();
+        let st = read_state(py, &r, &t, j)?;
+        let pre = read_state(py, &r_pre, &t_pre, j)?;
+        let p1 = self.data(py, &p1, &px)?;
+        let d = DataTerm {
+            p1: p1.0,
+            px: p1.1,
+            sum_x2,
+            n_p,
+            sigma2,
+        };
+        Ok(self.g.energy(
+            &st,
+            &pre,
+            &d,
+            &Weights {
+                beta_smooth,
+                beta_small,
+            },
+        ))
+    }
+
+    /// The paper's closed-form update of node `j` (Eqs. 9, 11) with the others fixed;
+    /// returns the new `(R_j (3, 3), T_j (3,))`.
+    #[allow(clippy::too_many_arguments)]
+    #[pyo3(signature = (j, r, t, r_pre, t_pre, p1, px, sigma2, beta_smooth, beta_small))]
+    fn node_update<'py>(
+        &self,
+        py: Python<'py>,
+        j: usize,
+        r: PyReadonlyArray3<'py, f64>,
+        t: PyReadonlyArray2<'py, f64>,
+        r_pre: PyReadonlyArray3<'py, f64>,
+        t_pre: PyReadonlyArray2<'py, f64>,
+        p1: PyReadonlyArray1<'py, f64>,
+        px: PyReadonlyArray2<'py, f64>,
+        sigma2: f64,
+        beta_smooth: f64,
+        beta_small: f64,
+    ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f64>>)> {
+        let nj = self.g.n_nodes();
+        if j >= nj {
+            return Err(PyValueError::new_err(format!("node {j} out of range")));
+        }
+        let mut st = read_state(py, &r, &t, nj)?;
+        let pre = read_state(py, &r_pre, &t_pre, nj)?;
+        let (p1s, pxs) = self.data(py, &p1, &px)?;
+        if !(sigma2 > 0.0) {
+            return Err(PyValueError::new_err("sigma2 must be positive"));
+        }
+        let d = DataTerm {
+            p1: p1s,
+            px: pxs,
+            sum_x2: 0.0,
+            n_p: 0.0,
+            sigma2,
+        };
+        let mut y = self.g.deform(&st);
+        self.g.node_update(
+            &mut st,
+            &pre,
+            &mut y,
+            j,
+            &d,
+            &Weights {
+                beta_smooth,
+                beta_small,
+            },
+        );
+        let rv: Vec<f64> = (0..3)
+            .flat_map(|a| (0..3).map(move |b| (a, b)))
+            .map(|(a, b)| st.r[j][(a, b)])
+            .collect();
+        Ok((
+            to_array2(py, rv, 3)?,
+            PyArray1::from_vec(py, st.t[j].iter().copied().collect()),
+        ))
+    }
+
+    /// One joint Gauss-Newton step on all nodes; returns the new `(R (J,3,3), T (J,3))`.
+    #[allow(clippy::too_many_arguments)]
+    #[pyo3(signature = (r, t, p1, px, sigma2, beta_smooth, beta_small, damping=0.0, cg_tol=1e-8, cg_max=500))]
+    fn gauss_newton_step<'py>(
+        &self,
+        py: Python<'py>,
+        r: PyReadonlyArray3<'py, f64>,
+        t: PyReadonlyArray2<'py, f64>,
+        p1: PyReadonlyArray1<'py, f64>,
+        px: PyReadonlyArray2<'py, f64>,
+        sigma2: f64,
+        beta_smooth: f64,
+        beta_small: f64,
+        damping: f64,
+        cg_tol: f64,
+        cg_max: usize,
+    ) -> PyResult<(Bound<'py, PyArray3<f64>>, Bound<'py, PyArray2<f64>>)> {
+        let mut st = read_state(py, &r, &t, self.g.n_nodes())?;
+        let (p1s, pxs) = self.data(py, &p1, &px)?;
+        if !(sigma2 > 0.0) {
+            return Err(PyValueError::new_err("sigma2 must be positive"));
+        }
+        let d = DataTerm {
+            p1: p1s,
+            px: pxs,
+            sum_x2: 0.0,
+            n_p: 0.0,
+            sigma2,
+        };
+        let w = Weights {
+            beta_smooth,
+            beta_small,
+        };
+        py.detach(|| {
+            self.g
+                .gauss_newton_step(&mut st, &d, &w, damping, cg_tol, cg_max)
+        });
+        write_state(py, &st)
+    }
+
+    /// Algorithm 1 on one frame from node transforms `(r, t)`; returns a dict with `R`, `T`,
+    /// `points` (M, 3), `sigma2`, `iterations`, `energy`, `n_p`, `n_data`, `history` (k, 2).
+    #[allow(clippy::too_many_arguments)]
+    #[pyo3(signature = (x, r, t, *, sigma2_start, omega, beta_smooth, beta_relative, beta_small,
+        sigma2_min, max_iter, tol, cutoff, single, rigid_iters, solver, damping, cg_tol, cg_max))]
+    fn register_frame<'py>(
+        &self,
+        py: Python<'py>,
+        x: PyReadonlyArray2<'py, f64>,
+        r: PyReadonlyArray3<'py, f64>,
+        t: PyReadonlyArray2<'py, f64>,
+        sigma2_start: f64,
+        omega: f64,
+        beta_smooth: f64,
+        beta_relative: bool,
+        beta_small: f64,
+        sigma2_min: f64,
+        max_iter: usize,
+        tol: f64,
+        cutoff: Option<f64>,
+        single: bool,
+        rigid_iters: usize,
+        solver: &str,
+        damping: f64,
+        cg_tol: f64,
+        cg_max: usize,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let xs = points(py, &x, "x")?;
+        let st = read_state(py, &r, &t, self.g.n_nodes())?;
+        let solver = match solver {
+            "gauss_newton" => Solver::GaussNewton,
+            "sweeps" => Solver::Sweeps,
+            other => {
+                return Err(PyValueError::new_err(format!(
+                    "solver must be 'gauss_newton' or 'sweeps', got {other:?}"
+                )))
+            }
+        };
+        let p = FrameParams {
+            omega,
+            beta_smooth,
+            beta_relative,
+            beta_small,
+            sigma2_start,
+            sigma2_min,
+            max_iter,
+            tol,
+            cutoff,
+            precision: if single {
+                Precision::Single
+            } else {
+                Precision::Double
+            },
+            rigid_iters,
+            solver,
+            damping,
+            cg_tol,
+            cg_max,
+        };
+        let res = py
+            .detach(|| deform::register_frame(&self.g, st, xs, &p))
+            .map_err(|e| to_pyerr(py, e))?;
+        let d = PyDict::new(py);
+        let (r, t) = write_state(py, &res.state)?;
+        d.set_item("R", r)?;
+        d.set_item("T", t)?;
+        d.set_item("points", vec_points(py, &res.points)?)?;
+        d.set_item("sigma2", res.sigma2)?;
+        d.set_item("iterations", res.iterations)?;
+        d.set_item("energy", res.energy)?;
+        d.set_item("n_p", res.n_p)?;
+        d.set_item("n_data", res.n_data)?;
+        let h: Vec<f64> = res.history.iter().flat_map(|&(a, b)| [a, b]).collect();
+        d.set_item("history", to_array2(py, h, 2)?)?;
+        Ok(d)
+    }
+}
+
+impl DeformGraph {
+    fn data<'a>(
+        &self,
+        py: Python<'_>,
+        p1: &'a PyReadonlyArray1<'_, f64>,
+        px: &'a PyReadonlyArray2<'_, f64>,
+    ) -> PyResult<(&'a [f64], &'a [f64])> {
+        let m = self.g.n_points();
+        let p1s = flat1(py, p1, "p1")?;
+        let pxs = points(py, px, "px")?;
+        if p1s.len() != m || pxs.len() != 3 * m {
+            return Err(PyValueError::new_err(format!("p1, px must have {m} rows")));
+        }
+        if p1s.iter().any(|&v| v < 0.0) {
+            return Err(PyValueError::new_err("p1 must be non-negative"));
+        }
+        Ok((p1s, pxs))
+    }
+}
+
+type EStepOut<'py> = (
+    Bound<'py, PyArray1<f64>>,
+    Bound<'py, PyArray1<f64>>,
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyDict>,
+);
+
+/// E-step of Eq. 4 as sufficient statistics (see `_core.pyi`).
+#[pyfunction]
+#[pyo3(signature = (y, x, sigma2, omega, cutoff=None, single=false))]
+fn gmm_estep<'py>(
+    py: Python<'py>,
+    y: PyReadonlyArray2<'py, f64>,
+    x: PyReadonlyArray2<'py, f64>,
+    sigma2: f64,
+    omega: f64,
+    cutoff: Option<f64>,
+    single: bool,
+) -> PyResult<EStepOut<'py>> {
+    let ys = points(py, &y, "y")?;
+    let xs = points(py, &x, "x")?;
+    let prec = if single {
+        Precision::Single
+    } else {
+        Precision::Double
+    };
+    let r = py
+        .detach(|| gmm::estep(ys, xs, sigma2, omega, cutoff, prec))
+        .map_err(|e| to_pyerr(py, e))?;
+    let st = r.stats;
+    let d = PyDict::new(py);
+    d.set_item("n_p", st.n_p)?;
+    d.set_item("sum_sq", st.sum_sq)?;
+    d.set_item("sum_x2", st.sum_x2)?;
+    d.set_item("nll", st.nll)?;
+    d.set_item("e_gmm", st.e_gmm)?;
+    d.set_item("trunc_bound", st.trunc_bound)?;
+    d.set_item("n_pairs", st.n_pairs)?;
+    Ok((
+        PyArray1::from_vec(py, r.p1),
+        PyArray1::from_vec(py, r.pt1),
+        to_array2(py, r.px, 3)?,
+        d,
+    ))
+}
+
+pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(gmm_estep, m)?)?;
+    m.add_class::<DeformGraph>()?;
     Ok(())
 }

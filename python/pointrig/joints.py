@@ -1,0 +1,611 @@
+"""Step 3: LBS-based skeleton joint learning (paper §6, Eqs. 13, 16-26, Algorithm 2).
+
+EM over the LBS model (Eq. 13) with the deformed rest points ``x_m^t`` as GMM centroids for
+the observed points ``v_i^t`` of each frame (Eq. 16):
+
+* E-step: truncated posteriors of Eq. 4 per frame (near neighbours only), kept as sufficient
+  statistics ``P1 (F, M)``, ``PX (F, M, 3)`` (:func:`e_step`).
+* Reduction: ``E_GMM + zeta/2 E_Register`` equals ``sum a/2 |x - z|^2 + const`` with
+  ``a = P1 / tau + zeta`` and ``z = (PX / tau + zeta y) / a`` (docs/joints.md), so every M-step
+  update is a weighted least-squares problem in ``x_m^t``.
+* M-step: point weights (Eq. 22, exact 4-bone simplex QP, Rust); bone rotations and
+  translations (Eqs. 23-26, Rust, parallel over frames); joint positions (Eq. 20);
+  covariances ``tau^t`` (Eq. 12 form); deformed points (Eq. 13).
+
+Two variants (``JointsConfig.mode``):
+
+``"paper"``
+    Algorithm 2 as printed: the soft joint term ``alpha/2 E_Joint`` with ``alpha = zeta M``
+    growing by 1.45 per iteration, per-bone updates of Eqs. 23-26 and joints from Eq. 20.
+``"articulated"`` (default, our deviation)
+    The joint term taken to its limit ``alpha -> inf``: bones always meet at their joints.
+    Rotations are updated bone by bone about the bone's head joint, carrying the subtree along,
+    and the joint positions are solved *jointly with the translations* from the data
+    (a linear least-squares problem), plus the ``eta |c - c~|^2`` prior. With the paper's
+    alternation, the growing alpha makes every bone rotate about the previous joint, so Eq. 20
+    returns that joint again and the joints barely move; see docs/joints.md for the ablation.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Protocol, Sequence
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from . import _core
+from .config import JointsConfig
+from .errors import ConfigError, InputError
+from .kinematics import joint_trajectories, solve_joint_positions
+
+__all__ = ["JointsResult", "StructureLike", "learn_joints", "e_step", "e_step_numpy",
+           "solve_joints_articulated"]
+
+log = logging.getLogger(__name__)
+_N_THREADS = max(1, min(4, os.cpu_count() or 1))
+
+
+class StructureLike(Protocol):
+    """What step 3 needs from step 2 (``pointrig.structure.StructureResult``)."""
+
+    labels: np.ndarray  # (M,) int in [0, B)
+    bone_parent: np.ndarray  # (B,) int, -1 at the root
+    R: np.ndarray  # (F, B, 3, 3) T_frame_rest rotations
+    T: np.ndarray  # (F, B, 3) translations, metres
+    joints_rest: np.ndarray  # (B, 3) head joints, metres
+    c_tilde: np.ndarray  # (B, 3) boundary centroids (root: its centre), metres
+    root: int
+
+
+@dataclass
+class JointsResult:
+    """Output of step 3.
+
+    Attributes
+    ----------
+    weights
+        ``(M, B)`` LBS weights: non-negative, rows sum to 1, at most
+        ``max_bones_per_point`` non-zeros per row (Eq. 21b).
+    R, T
+        ``(F, B, 3, 3)``, ``(F, B, 3)`` bone transforms (T_frame_rest: ``x = R q + T``).
+    joints_rest
+        ``(B, 3)`` rest-pose joints (joint b = head of bone b), metres.
+    tau
+        ``(F,)`` GMM variances ``tau^t``, m^2.
+    energy
+        ``E_Total`` (Eq. 21a) after each iteration.
+    bone_parent
+        ``(B,)`` bone tree (copied from step 2).
+    diagnostics
+        Per-iteration terms, joint shifts, alpha, timings.
+    """
+
+    weights: np.ndarray
+    R: np.ndarray
+    T: np.ndarray
+    joints_rest: np.ndarray
+    tau: np.ndarray
+    energy: list[float]
+    bone_parent: np.ndarray
+    root: int = 0
+    diagnostics: dict[str, Any] = field(default_factory=dict)
+
+    def joints(self) -> np.ndarray:
+        """``(F, B, 3)`` joint trajectories, metres."""
+        return joint_trajectories(self.joints_rest, self.R, self.T, self.bone_parent)
+
+    def save(self, path: str | Path) -> None:
+        """Write to ``.npz`` (diagnostics with array-like values only)."""
+        from .io import write_npz
+
+        diag = {f"diag_{k}": np.asarray(v) for k, v in self.diagnostics.items()
+                if isinstance(v, (list, tuple, np.ndarray, float, int))}
+        write_npz(
+            path,
+            weights=self.weights, R=self.R, T=self.T, joints_rest=self.joints_rest,
+            tau=self.tau, energy=np.asarray(self.energy), bone_parent=self.bone_parent,
+            root=np.asarray(self.root), **diag,
+        )
+
+    @classmethod
+    def load(cls, path: str | Path) -> "JointsResult":
+        with np.load(path) as z:
+            diag = {k[5:]: z[k] for k in z.files if k.startswith("diag_")}
+            return cls(
+                weights=z["weights"], R=z["R"], T=z["T"], joints_rest=z["joints_rest"],
+                tau=z["tau"], energy=[float(v) for v in z["energy"]],
+                bone_parent=z["bone_parent"], root=int(z["root"]), diagnostics=diag,
+            )
+
+
+# ----------------------------------------------------------------------------- E-step
+
+
+@dataclass
+class EStats:
+    """Sufficient statistics of the E-step of one EM iteration, all frames."""
+
+    P1: np.ndarray  # (F, M) sum_i p_mi
+    PX: np.ndarray  # (F, M, 3) sum_i p_mi v_i
+    Np: np.ndarray  # (F,) sum_mi p_mi
+    sxx: np.ndarray  # (F,) sum_i (sum_m p_mi) |v_i|^2
+
+
+def e_step(
+    frames: Sequence[np.ndarray],
+    X: np.ndarray,
+    tau: np.ndarray,
+    omega: float,
+    n_neighbors: int = 8,
+    radius_sigmas: float = 3.5,
+) -> EStats:
+    """Posteriors of Eq. 4 (form of §6.2) per frame, with the Rust GMM kernel
+    (``_core.gmm_estep``, truncated at ``radius_sigmas * sqrt(tau^t)``, rayon inside).
+
+    ``n_neighbors`` is only used by the numpy reference :func:`e_step_numpy`.
+    Shapes: ``frames`` F arrays ``(N_t, 3)``; ``X (F, M, 3)``; ``tau (F,)`` m^2.
+    """
+    F, M, _ = X.shape
+    P1 = np.zeros((F, M))
+    PX = np.zeros((F, M, 3))
+    Np = np.zeros(F)
+    sxx = np.zeros(F)
+    for t in range(F):
+        p1, _, px, stats = _core.gmm_estep(np.ascontiguousarray(X[t]), frames[t], float(tau[t]),
+                                           float(omega), float(radius_sigmas))
+        P1[t], PX[t] = p1, px
+        Np[t], sxx[t] = stats["n_p"], stats["sum_x2"]
+    return EStats(P1, PX, Np, sxx)
+
+
+def e_step_numpy(
+    frames: Sequence[np.ndarray],
+    X: np.ndarray,
+    tau: np.ndarray,
+    omega: float,
+    n_neighbors: int = 8,
+    radius_sigmas: float = 3.5,
+) -> EStats:
+    """Posteriors of Eq. 4 (form of §6.2) between deformed points ``X`` and each frame.
+
+    Truncated: each observed point only sees its ``n_neighbors`` nearest deformed points within
+    ``radius_sigmas * sqrt(tau^t)``; the outlier term ``(2 pi tau)^{3/2} omega M / ((1-omega) N)``
+    is exact. Numpy/scipy reference of :func:`e_step` (k nearest only).
+
+    Parameters
+    ----------
+    frames
+        ``F`` arrays ``(N_t, 3)`` of observed points, metres.
+    X
+        ``(F, M, 3)`` deformed rest points ``x_m^t``.
+    tau
+        ``(F,)`` variances, m^2.
+    """
+    F, M, _ = X.shape
+    P1 = np.zeros((F, M))
+    PX = np.zeros((F, M, 3))
+    Np = np.zeros(F)
+    sxx = np.zeros(F)
+    k = min(n_neighbors, M)
+
+    def one(t: int) -> None:
+        V = frames[t]
+        N = len(V)
+        tree = cKDTree(X[t])
+        r = radius_sigmas * np.sqrt(tau[t])
+        d, idx = tree.query(V, k=k, distance_upper_bound=r)
+        if k == 1:
+            d, idx = d[:, None], idx[:, None]
+        ok = np.isfinite(d)
+        g = np.exp(-0.5 * np.where(ok, d * d, np.inf) / tau[t])
+        c = (2 * np.pi * tau[t]) ** 1.5 * omega * M / ((1 - omega) * N)
+        p = g / (g.sum(1, keepdims=True) + c)
+        flat = np.where(ok, idx, 0).ravel()
+        pf = p.ravel()
+        P1[t] = np.bincount(flat, pf, minlength=M)
+        for a in range(3):
+            PX[t, :, a] = np.bincount(flat, (p * V[:, a:a + 1]).ravel(), minlength=M)
+        pt1 = p.sum(1)
+        Np[t] = pt1.sum()
+        sxx[t] = float(pt1 @ np.einsum("ij,ij->i", V, V))
+
+    with ThreadPoolExecutor(max_workers=_N_THREADS) as ex:
+        list(ex.map(one, range(F)))
+    return EStats(P1, PX, Np, sxx)
+
+
+def _gmm_energy(st: EStats, X: np.ndarray, tau: np.ndarray) -> tuple[float, np.ndarray]:
+    """Eq. 18 and the per-frame weighted squared residual sum_im p |v - x|^2."""
+    ss = st.sxx - 2 * np.einsum("fmi,fmi->f", X, st.PX) + np.einsum("fm,fmi,fmi->f", st.P1, X, X)
+    ss = np.maximum(ss, 0.0)
+    e = float(np.sum(ss / (2 * tau) + 1.5 * st.Np * np.log(tau)))
+    return e, ss
+
+
+# ------------------------------------------------------------------------ joint solves
+
+
+def _subtree_matrix(parent: np.ndarray) -> np.ndarray:
+    """``S (B, B)`` with ``S[a, j] = 1`` when bone j is in the subtree of bone a."""
+    B = len(parent)
+    S = np.zeros((B, B))
+    for j in range(B):
+        a = j
+        while a >= 0:
+            S[a, j] = 1.0
+            a = parent[a]
+    return S
+
+
+def _topo_order(parent: np.ndarray) -> list[int]:
+    B = len(parent)
+    children: list[list[int]] = [[] for _ in range(B)]
+    roots = []
+    for j, p in enumerate(parent):
+        (roots if p < 0 else children[p]).append(j)
+    order, stack = [], list(roots)
+    while stack:
+        j = stack.pop()
+        order.append(j)
+        stack.extend(children[j])
+    return order
+
+
+def chain_translations(R: np.ndarray, T_root: np.ndarray, joints: np.ndarray, parent: np.ndarray) -> np.ndarray:
+    """Translations of every bone from the root's and the joints (bones meet at joints):
+    ``T_k = T_p + (R_p - R_k) c_k``. Returns ``(F, B, 3)``."""
+    F, B = R.shape[:2]
+    T = np.zeros((F, B, 3))
+    for k in _topo_order(parent):
+        p = parent[k]
+        if p < 0:
+            T[:, k] = T_root[:, k] if T_root.ndim == 3 else T_root
+        else:
+            T[:, k] = T[:, p] + np.einsum("fij,j->fi", R[:, p] - R[:, k], joints[k])
+    return T
+
+
+def solve_joints_articulated(
+    Q: np.ndarray,
+    W: np.ndarray,
+    R: np.ndarray,
+    a: np.ndarray,
+    z: np.ndarray,
+    parent: np.ndarray,
+    c_prior: np.ndarray,
+    prior_weight: float,
+    root_translation: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Joint positions and translations that minimise the reduced data term for fixed R, W.
+
+    With bones meeting at their joints, ``T_b = T_root + sum_{e on path(b)} (R_p(e) - R_e) c_e``
+    so ``x_m^t = s_m^t + T_root^t + sum_e ws_me A_e^t c_e`` with ``s = sum_b w_mb R_b q_m``,
+    ``ws_me = sum_{b in subtree(e)} w_mb`` and ``A_e = R_p(e) - R_e``: a linear least-squares
+    problem in ``(T_root^t, c_e)``. ``T_root^t`` is eliminated frame by frame (Schur
+    complement) and the ``3(B-1)`` normal equations are solved with the prior
+    ``lambda_e |c_e - c~_e|^2``, ``lambda_e = prior_weight * mean_t sum_m a ws_me^2``
+    (docs/joints.md).
+
+    Returns
+    -------
+    joints
+        ``(B, 3)`` joints (the root's entry is ``c_prior[root]``).
+    T
+        ``(F, B, 3)`` chain-consistent translations.
+    """
+    F, B = R.shape[:2]
+    edges = np.flatnonzero(parent >= 0)
+    root = int(np.flatnonzero(parent < 0)[0])
+    joints = np.array(c_prior, dtype=float, copy=True)
+    S = _subtree_matrix(parent)
+    # s (F, M, 3) = LBS with zero translations
+    idx, w = _dense_to_sparse(W, int(max(1, (W > 0).sum(1).max())))
+    Rf = np.ascontiguousarray(R.reshape(F * B, 9))
+    s = _core.lbs_skin(Q, idx, w, Rf, np.zeros((F * B, 3)), F).reshape(F, -1, 3)
+    r0 = z - s
+    S0 = a.sum(1)
+    S0s = np.where(S0 > 0, S0, 1.0)
+    d0 = np.einsum("fm,fmi->fi", a, r0)
+    if edges.size == 0:
+        T_root = d0 / S0s[:, None]
+        return joints, np.broadcast_to(T_root[:, None], (F, B, 3)).copy()
+    ws = W @ S[edges].T  # (M, E)
+    aws = a[:, :, None] * ws[None]  # (F, M, E)
+    S1 = aws.sum(1)  # (F, E)
+    S2 = np.einsum("fme,mg->feg", aws, ws, optimize=True)  # (F, E, E)
+    d1 = np.einsum("fme,fmi->fei", aws, r0, optimize=True)  # (F, E, 3)
+    K = S2 - S1[:, :, None] * S1[:, None, :] / S0s[:, None, None]
+    A = R[:, parent[edges]] - R[:, edges]  # (F, E, 3, 3)
+    E = len(edges)
+    H = np.einsum("teg,teji,tgjk->eigk", K, A, A, optimize=True).reshape(3 * E, 3 * E)
+    rhs_v = d1 - S1[:, :, None] * (d0 / S0s[:, None])[:, None, :]
+    rhs = np.einsum("teji,tej->ei", A, rhs_v, optimize=True)
+    lam = prior_weight * S2[:, np.arange(E), np.arange(E)].mean(0)  # (E,)
+    lam = np.maximum(lam, 1e-12 * max(1.0, float(np.abs(H).max())))
+    H[np.arange(3 * E), np.arange(3 * E)] += np.repeat(lam, 3)
+    rhs = rhs + lam[:, None] * c_prior[edges]
+    sol = np.linalg.solve(H, rhs.reshape(-1)).reshape(E, 3)
+    joints[edges] = sol
+    T_root = (d0 - np.einsum("fe,feij,ej->fi", S1, A, sol)) / S0s[:, None]
+    if root_translation is not None:
+        T_root = np.where((S0 > 0)[:, None], T_root, root_translation)
+    T = chain_translations(R, T_root, joints, parent)
+    del root
+    return joints, T
+
+
+# -------------------------------------------------------------------------- main loop
+
+
+def _weight_crossing_prior(Q: np.ndarray, W: np.ndarray, parent: np.ndarray,
+                           fallback: np.ndarray, min_mass: float = 0.5) -> np.ndarray:
+    """Prior joint targets where the blend weights of each edge cross: the centroid of the rest
+    points weighted by ``w_mk * w_mp`` (child k, parent p), which peaks at ``w = 1/2``.
+    Edges with less than ``min_mass`` total product weight keep ``fallback`` (c~)."""
+    out = fallback.copy()
+    for k, p in enumerate(parent):
+        if p < 0:
+            continue
+        rho = W[:, k] * W[:, p]
+        if rho.sum() >= min_mass:
+            out[k] = rho @ Q / rho.sum()
+    return out
+
+
+
+def _dense_to_sparse(W: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    k = min(k, W.shape[1])
+    idx = np.argsort(-W, axis=1, kind="stable")[:, :k]
+    w = np.take_along_axis(W, idx, axis=1)
+    return np.ascontiguousarray(idx, dtype=np.int64), np.ascontiguousarray(w)
+
+
+def _sparse_to_dense(idx: np.ndarray, w: np.ndarray, B: int) -> np.ndarray:
+    W = np.zeros((idx.shape[0], B))
+    np.add.at(W, (np.repeat(np.arange(idx.shape[0]), idx.shape[1]), idx.ravel()), w.ravel())
+    return W
+
+
+def _flat_rt(R: np.ndarray, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    F, B = R.shape[:2]
+    return (np.ascontiguousarray(R.reshape(F * B, 9)), np.ascontiguousarray(T.reshape(F * B, 3)))
+
+
+def _joint_term(R, T, joints, parent) -> float:
+    """Second sum of Eq. 20: sum_t sum_edges |R_j c + T_j - R_k c - T_k|^2."""
+    e = 0.0
+    for k, j in enumerate(parent):
+        if j < 0:
+            continue
+        c = joints[k]
+        d = np.einsum("fij,j->fi", R[:, j] - R[:, k], c) + T[:, j] - T[:, k]
+        e += float(np.sum(d * d))
+    return e
+
+
+def _validate(frames, Q, Y, st) -> None:
+    if Q.ndim != 2 or Q.shape[1] != 3 or len(Q) == 0:
+        raise InputError(f"rest_points must be (M, 3) with M > 0, got {Q.shape}")
+    if Y.ndim != 3 or Y.shape[1:] != Q.shape:
+        raise InputError(f"registered must be (F, {len(Q)}, 3), got {Y.shape}")
+    F = Y.shape[0]
+    if len(frames) != F:
+        raise InputError(f"{len(frames)} frames but registered has {F}")
+    for t, V in enumerate(frames):
+        if V.ndim != 2 or V.shape[1] != 3 or len(V) == 0:
+            raise InputError(f"frame {t}: expected (N, 3) with N > 0, got {V.shape}")
+        if not np.all(np.isfinite(V)):
+            raise InputError(f"frame {t}: non-finite values")
+    if not (np.all(np.isfinite(Q)) and np.all(np.isfinite(Y))):
+        raise InputError("rest_points / registered: non-finite values")
+    B = len(st.bone_parent)
+    if st.R.shape != (F, B, 3, 3) or st.T.shape != (F, B, 3):
+        raise InputError(f"structure R/T must be ({F}, {B}, 3, 3)/({F}, {B}, 3), "
+                         f"got {st.R.shape}/{st.T.shape}")
+    if st.labels.shape != (len(Q),) or st.labels.min() < 0 or st.labels.max() >= B:
+        raise InputError("structure.labels must be (M,) in [0, B)")
+    if int(np.sum(np.asarray(st.bone_parent) < 0)) != 1:
+        raise InputError("bone_parent must have exactly one root (-1)")
+
+
+def learn_joints(
+    frames: Sequence[np.ndarray],
+    rest_points: np.ndarray,
+    registered: np.ndarray,
+    structure: StructureLike,
+    config: JointsConfig | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> JointsResult:
+    """Refine the skeleton's joints with the full LBS model (Algorithm 2).
+
+    Parameters
+    ----------
+    frames
+        ``F`` observed point clouds ``(N_t, 3)``, metres (the original input ``V^t``).
+    rest_points
+        ``(M, 3)`` rest points ``q_m``, metres.
+    registered
+        ``(F, M, 3)`` registered points ``y_m^t`` from step 1.
+    structure
+        Step-2 result (:class:`StructureLike`): labels, bone tree, transforms, joints, c~.
+    config
+        :class:`~pointrig.config.JointsConfig` (Table 1 defaults).
+    progress
+        Called as ``progress(iteration, max_iterations)`` after each iteration.
+
+    Returns
+    -------
+    JointsResult
+
+    Raises
+    ------
+    InputError
+        On inconsistent shapes or non-finite input.
+    ConfigError
+        On an unknown ``mode``.
+    """
+    cfg = config or JointsConfig()
+    if cfg.mode not in ("paper", "articulated"):
+        raise ConfigError(f"joints.mode must be 'paper' or 'articulated', got {cfg.mode!r}")
+    Q = np.ascontiguousarray(rest_points, dtype=np.float64)
+    Y = np.ascontiguousarray(registered, dtype=np.float64)
+    frames = [np.ascontiguousarray(v, dtype=np.float64) for v in frames]
+    _validate(frames, Q, Y, structure)
+    F, M, _ = Y.shape
+    parent = np.asarray(structure.bone_parent, dtype=np.int64)
+    B = len(parent)
+    root = int(np.flatnonzero(parent < 0)[0])
+    K = min(cfg.max_bones_per_point, B)
+    c_tilde = np.asarray(structure.c_tilde, dtype=float)
+    R = np.array(structure.R, dtype=float)
+    T = np.array(structure.T, dtype=float)
+    joints = np.array(structure.joints_rest, dtype=float)
+    W = np.zeros((M, B))
+    W[np.arange(M), np.asarray(structure.labels)] = 1.0
+    tau = np.full(F, cfg.tau_init)
+    alpha = cfg.alpha_init if cfg.alpha_init is not None else cfg.zeta * M
+    articulated = cfg.mode == "articulated"
+    c_prior = c_tilde.copy()
+    c_prior[root] = joints[root]
+
+    def skin_all(W_, R_, T_):
+        idx, w = _dense_to_sparse(W_, K)
+        Rf, Tf = _flat_rt(R_, T_)
+        return _core.lbs_skin(Q, idx, w, Rf, Tf, F).reshape(F, M, 3)
+
+    energy: list[float] = []
+    diag: dict[str, list] = {k: [] for k in (
+        "e_gmm", "e_register", "e_joint", "e_small", "alpha", "joint_shift", "tau_mean",
+        "t_estep", "t_weights", "t_bones", "t_joints")}
+    allowed = None
+    if cfg.weight_candidates == "tree":
+        # only the point's step-2 bone and the bones adjacent to it in the tree
+        adj = np.eye(B, dtype=bool)
+        for k_, p_ in enumerate(parent):
+            if p_ >= 0:
+                adj[k_, p_] = adj[p_, k_] = True
+        allowed = np.ascontiguousarray(adj[np.asarray(structure.labels)])
+    elif cfg.weight_candidates != "all":
+        raise ConfigError(f"joints.weight_candidates must be 'all' or 'tree', got {cfg.weight_candidates!r}")
+    X = skin_all(W, R, T)
+    joints0 = joints.copy()
+    prev_total = None
+    it = 0
+    for it in range(1, cfg.max_iterations + 1):
+        t0 = time.perf_counter()
+        # ---- E-step (Eq. 4 form) and the reduced data term
+        if cfg.use_gmm:
+            st = e_step(frames, X, tau, cfg.omega, cfg.estep_neighbors, cfg.estep_radius_sigmas)
+            a_g = st.P1 / tau[:, None]
+            if cfg.gmm_density_normalize:
+                # one unit of evidence per template point, not per observed point (N_t / M)
+                a_g = a_g * (M / np.array([len(v) for v in frames], float))[:, None]
+            if cfg.gmm_robust > 0 and cfg.zeta > 0:
+                # down-weight GMM targets that disagree with the registration (occlusion,
+                # mismatched surfaces): Cauchy weight on |PX/P1 - y| in units of sqrt(tau)
+                zg = st.PX / np.maximum(st.P1, 1e-300)[..., None]
+                r2 = np.sum((zg - Y) ** 2, axis=2) / (cfg.gmm_robust ** 2 * tau[:, None])
+                a_g = a_g / (1.0 + r2)
+            a = a_g + cfg.zeta
+            num = a_g[..., None] * (st.PX / np.maximum(st.P1, 1e-300)[..., None]) + cfg.zeta * Y
+        else:
+            st = None
+            a = np.full((F, M), cfg.zeta)
+            num = cfg.zeta * Y
+        safe = np.where(a > 0, a, 1.0)
+        z = np.where((a > 0)[..., None], num / safe[..., None], X)
+        a = np.ascontiguousarray(a)
+        zf = np.ascontiguousarray(z.reshape(F * M, 3))
+        t1 = time.perf_counter()
+        R_pre, T_pre = R.copy(), T.copy()
+
+        # ---- weights (Eq. 22)
+        if cfg.update_weights:
+            Rf, Tf = _flat_rt(R, T)
+            idx, w, _ = _core.lbs_fit_weights(Q, Rf, Tf, a, zf, F, K, allowed)
+            Wn = _sparse_to_dense(idx, w, B)
+            seen = a.sum(0) > 0
+            W = np.where(seen[:, None], Wn, W)
+        t2 = time.perf_counter()
+        idx, w = _dense_to_sparse(W, K)
+
+        # ---- bones (Eqs. 23-26) and joints (Eq. 20)
+        if articulated and cfg.prior_from_weights:
+            c_prior = _weight_crossing_prior(Q, W, parent, c_prior)
+        if articulated:
+            joints, T = solve_joints_articulated(Q, W, R, a, z, parent, c_prior,
+                                                 cfg.eta * cfg.joint_prior, T[:, root])
+            t3 = time.perf_counter()
+            for _ in range(cfg.bone_sweeps):
+                Rf, Tf = _flat_rt(R, T)
+                Rn, Tn = _core.lbs_sweep_articulated(
+                    Q, idx, w, Rf, Tf, a, zf, _flat_rt(R_pre, T_pre)[0], parent, joints,
+                    cfg.gamma, F)
+                R, T = Rn.reshape(F, B, 3, 3), Tn.reshape(F, B, 3)
+            t4 = time.perf_counter()
+            joints, T = solve_joints_articulated(Q, W, R, a, z, parent, c_prior,
+                                                 cfg.eta * cfg.joint_prior, T[:, root])
+        else:
+            t3 = time.perf_counter()
+            for _ in range(cfg.bone_sweeps):
+                Rf, Tf = _flat_rt(R, T)
+                Rpf, Tpf = _flat_rt(R_pre, T_pre)
+                Rn, Tn = _core.lbs_sweep_paper(
+                    Q, idx, w, Rf, Tf, a, zf, Rpf, Tpf, parent, joints, alpha, cfg.gamma, F)
+                R, T = Rn.reshape(F, B, 3, 3), Tn.reshape(F, B, 3)
+            t4 = time.perf_counter()
+            joints = solve_joint_positions(R, T, parent, c_prior, cfg.eta)
+        t5 = time.perf_counter()
+
+        # ---- deformed points (Eq. 13) and covariances (Eq. 12 form)
+        X = skin_all(W, R, T)
+        if st is not None:
+            e_gmm, ss = _gmm_energy(st, X, tau)
+            tau = np.maximum(ss / (3 * np.maximum(st.Np, 1e-12)), cfg.tau_min)
+            e_gmm, _ = _gmm_energy(st, X, tau)
+        else:
+            e_gmm = 0.0
+        e_reg = float(np.sum((Y - X) ** 2))
+        e_joint_cons = _joint_term(R, T, joints, parent)
+        nr = parent >= 0
+        e_prior = float(np.sum((joints[nr] - c_tilde[nr]) ** 2))
+        e_small = float(np.sum((R - R_pre) ** 2) + np.sum((T - T_pre) ** 2))
+        if articulated:
+            lam_scale = cfg.eta * cfg.joint_prior * float(np.mean(a.sum(1)))
+            e_joint = lam_scale * e_prior
+            total = e_gmm + 0.5 * cfg.zeta * e_reg + 0.5 * e_joint + 0.5 * cfg.gamma * e_small
+        else:
+            e_joint = cfg.eta * e_prior + e_joint_cons
+            total = e_gmm + 0.5 * cfg.zeta * e_reg + 0.5 * alpha * e_joint + 0.5 * cfg.gamma * e_small
+        energy.append(float(total))
+        shift = float(np.max(np.linalg.norm(joints - joints0, axis=1))) if it == 1 else float(
+            np.max(np.linalg.norm(joints - diag["_prev_joints"], axis=1)))  # type: ignore[arg-type]
+        diag["_prev_joints"] = joints.copy()  # type: ignore[assignment]
+        for key, val in (("e_gmm", e_gmm), ("e_register", e_reg), ("e_joint", e_joint),
+                         ("e_small", e_small), ("alpha", alpha), ("joint_shift", shift),
+                         ("tau_mean", float(tau.mean())), ("t_estep", t1 - t0),
+                         ("t_weights", t2 - t1), ("t_bones", t4 - t3),
+                         ("t_joints", (t3 - t2) + (t5 - t4))):
+            diag[key].append(val)
+        log.debug("step 3 iteration %d: E=%.6g shift=%.4g m tau=%.3g", it, total, shift, tau.mean())
+        if progress is not None:
+            progress(it, cfg.max_iterations)
+        if not articulated:
+            alpha *= cfg.alpha_growth
+        if prev_total is not None and abs(total - prev_total) <= cfg.tolerance * max(abs(total), 1e-300):
+            break
+        if cfg.joint_tolerance > 0 and it >= cfg.min_iterations and shift < cfg.joint_tolerance:
+            break
+        prev_total = total
+    diag.pop("_prev_joints", None)
+    out_diag: dict[str, Any] = dict(diag)
+    out_diag["iterations"] = it
+    out_diag["mode"] = cfg.mode
+    out_diag["joints_step2"] = np.asarray(structure.joints_rest, dtype=float)
+    return JointsResult(W, R, T, joints, tau, energy, parent.copy(), root, out_diag)

@@ -1,0 +1,207 @@
+"""Step 3 (§6): weight QP, bone sweeps, joint solve and the whole EM on synthetic figures."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from joints_helpers import joint_errors, make_figure, step2_standin
+from scipy.optimize import minimize
+
+from pointrig import _core
+from pointrig.config import JointsConfig
+from pointrig.errors import ConfigError, InputError
+from pointrig.joints import JointsResult, learn_joints, solve_joints_articulated
+from pointrig.kinematics import skin
+
+
+def _flat(R, T):
+    F, B = R.shape[:2]
+    return np.ascontiguousarray(R.reshape(F * B, 9)), np.ascontiguousarray(T.reshape(F * B, 3))
+
+
+def _sparse(W, k):
+    idx = np.argsort(-W, axis=1, kind="stable")[:, :k]
+    return np.ascontiguousarray(idx, dtype=np.int64), np.ascontiguousarray(np.take_along_axis(W, idx, 1))
+
+
+# ------------------------------------------------------------------------- Eq. 22 QP
+
+
+@pytest.mark.parametrize("k", [1, 2, 3, 4, 6])
+def test_simplex_qp_matches_scipy(k):
+    rng = np.random.default_rng(k)
+    for trial in range(25):
+        G = rng.normal(size=(3 * k + trial % 3, k))
+        if trial % 5 == 0 and k > 1:
+            G[:, -1] = G[:, 0]  # singular H: duplicated bone
+        H = G.T @ G
+        g = rng.normal(size=k) * (3 if trial % 2 else 0.3)
+        w = _core.simplex_qp(np.ascontiguousarray(H), g)
+        assert np.all(w >= 0) and abs(w.sum() - 1) < 1e-12
+        f = lambda x: 0.5 * x @ H @ x - g @ x  # noqa: E731
+        ref = minimize(f, np.full(k, 1 / k), jac=lambda x: H @ x - g, method="SLSQP",
+                       bounds=[(0, 1)] * k,
+                       constraints=[{"type": "eq", "fun": lambda x: x.sum() - 1}],
+                       options={"ftol": 1e-14, "maxiter": 500})
+        assert f(w) <= f(ref.x) + 1e-9 * max(1.0, abs(f(ref.x)))
+        if np.linalg.eigvalsh(H).min() > 1e-6:  # strictly convex: unique minimiser
+            np.testing.assert_allclose(w, ref.x, atol=1e-5)
+
+
+def test_simplex_qp_rejects_bad_input():
+    with pytest.raises(ValueError):
+        _core.simplex_qp(np.eye(9), np.zeros(9))  # k > 8
+    with pytest.raises(InputError):
+        _core.simplex_qp(np.array([[np.nan]]), np.zeros(1))
+
+
+def test_fit_weights_recovers_blend_weights_on_clean_data():
+    fig = make_figure("arm", n_frames=8, n_points=300, obs_noise=0, reg_noise=0, outliers=0)
+    F, M = fig.registered.shape[:2]
+    Rf, Tf = _flat(fig.R, fig.T)
+    X = skin(fig.rest_points, fig.weights, fig.R, fig.T)
+    idx, w, res = _core.lbs_fit_weights(fig.rest_points, Rf, Tf, np.ones((F, M)),
+                                        np.ascontiguousarray(X.reshape(-1, 3)), F, 4)
+    W = np.zeros_like(fig.weights)
+    np.add.at(W, (np.repeat(np.arange(M), idx.shape[1]), idx.ravel()), w.ravel())
+    assert np.all(w >= 0) and np.allclose(w.sum(1), 1)
+    np.testing.assert_allclose(W, fig.weights, atol=1e-5)
+    assert res.max() < 1e-10
+
+
+def test_skin_kernel_matches_numpy():
+    fig = make_figure("human", n_frames=4, n_points=400)
+    idx, w = _sparse(fig.weights, 4)
+    Rf, Tf = _flat(fig.R, fig.T)
+    out = _core.lbs_skin(fig.rest_points, idx, w, Rf, Tf, 4).reshape(4, -1, 3)
+    np.testing.assert_allclose(out, skin(fig.rest_points, fig.weights, fig.R, fig.T), atol=1e-12)
+
+
+# ------------------------------------------------------------------ Eqs. 23-26 sweeps
+
+
+def _surrogate(Q, W, R, T, a, z, R_pre, T_pre, parent, joints, alpha, gamma, trans_small=True):
+    X = skin(Q, W, R, T)
+    e = 0.5 * np.sum(a * np.sum((X - z) ** 2, axis=2))
+    for k, j in enumerate(parent):
+        if j >= 0 and alpha > 0:
+            c = joints[k]
+            d = np.einsum("fij,j->fi", R[:, j] - R[:, k], c) + T[:, j] - T[:, k]
+            e += 0.5 * alpha * np.sum(d * d)
+    e += 0.5 * gamma * np.sum((R - R_pre) ** 2)
+    if trans_small:
+        e += 0.5 * gamma * np.sum((T - T_pre) ** 2)
+    return e
+
+
+@pytest.mark.parametrize("mode", ["paper", "articulated"])
+def test_bone_sweeps_never_increase_energy(mode):
+    fig = make_figure("human", n_frames=5, n_points=600, seed=3)
+    st = step2_standin(fig)
+    F, M = fig.registered.shape[:2]
+    rng = np.random.default_rng(0)
+    a = rng.uniform(0.5, 2.0, (F, M)) * 1e4
+    z = np.ascontiguousarray(fig.registered)
+    idx, w = _sparse(fig.weights, 4)
+    R, T = st.R.copy(), st.T.copy()
+    R_pre, T_pre = R.copy(), T.copy()
+    alpha, gamma = (1e5, 0.1) if mode == "paper" else (0.0, 0.1)
+    args = (fig.rest_points, fig.weights)
+    prev = _surrogate(*args, R, T, a, z, R_pre, T_pre, fig.bone_parent, st.joints_rest, alpha,
+                      gamma, mode == "paper")
+    for _ in range(4):
+        Rf, Tf = _flat(R, T)
+        if mode == "paper":
+            Rn, Tn = _core.lbs_sweep_paper(fig.rest_points, idx, w, Rf, Tf, a, z.reshape(-1, 3),
+                                           *_flat(R_pre, T_pre), fig.bone_parent,
+                                           st.joints_rest, alpha, gamma, F)
+        else:
+            Rn, Tn = _core.lbs_sweep_articulated(fig.rest_points, idx, w, Rf, Tf, a,
+                                                 z.reshape(-1, 3), _flat(R_pre, T_pre)[0],
+                                                 fig.bone_parent, st.joints_rest, gamma, F)
+        R, T = Rn.reshape(R.shape), Tn.reshape(T.shape)
+        assert np.allclose(np.einsum("fbij,fbkj->fbik", R, R), np.eye(3), atol=1e-10)
+        assert np.all(np.linalg.det(R) > 0)
+        e = _surrogate(*args, R, T, a, z, R_pre, T_pre, fig.bone_parent, st.joints_rest, alpha,
+                       gamma, mode == "paper")
+        assert e <= prev * (1 + 1e-10)
+        prev = e
+
+
+def test_articulated_joint_solve_is_exact_with_true_weights_and_rotations():
+    fig = make_figure("human", n_frames=10, n_points=800, obs_noise=0, reg_noise=0, outliers=0)
+    X = skin(fig.rest_points, fig.weights, fig.R, fig.T)
+    a = np.ones(X.shape[:2])
+    prior = fig.joints_rest + 0.05  # wrong prior with ~zero weight must not matter
+    c, T = solve_joints_articulated(fig.rest_points, fig.weights, fig.R, a, X, fig.bone_parent,
+                                    prior, 1e-9)
+    nr = fig.bone_parent >= 0
+    # hinge joints are only determined up to their axis; project the error off the axis
+    for k in np.flatnonzero(nr):
+        err = c[k] - fig.joints_rest[k]
+        A = fig.R[:, fig.bone_parent[k]] - fig.R[:, k]
+        assert np.linalg.norm(np.einsum("fij,j->fi", A, err)) < 1e-6
+    np.testing.assert_allclose(skin(fig.rest_points, fig.weights, fig.R, T), X, atol=1e-6)
+
+
+# --------------------------------------------------------------------------- the EM
+
+
+def test_noise_free_arm_joints_within_1cm():
+    fig = make_figure("arm", n_frames=12, n_points=600, n_obs=2000, obs_noise=0, reg_noise=0,
+                      outliers=0, seed=1)
+    st = step2_standin(fig)
+    res = learn_joints(fig.frames, fig.rest_points, fig.registered, st, JointsConfig())
+    err = np.linalg.norm(res.joints_rest - fig.joints_rest, axis=1)[fig.bone_parent >= 0]
+    assert err.max() < 0.01, err
+    W = res.weights
+    assert np.all(W >= 0) and np.allclose(W.sum(1), 1) and np.all((W > 0).sum(1) <= 4)
+
+
+def test_step3_beats_step2_on_noisy_blended_figure():
+    fig = make_figure("human", n_frames=15, n_points=1000, n_obs=2500, seed=2)
+    st = step2_standin(fig)
+    before = joint_errors(fig, st.joints_rest, st.R, st.T)
+    res = learn_joints(fig.frames, fig.rest_points, fig.registered, st, JointsConfig())
+    after = joint_errors(fig, res.joints_rest, res.R, res.T)
+    assert after["traj_mean"] < 0.5 * before["traj_mean"], (before, after)
+    assert after["traj_mean"] < 0.015
+    assert res.R.shape == st.R.shape and res.tau.shape == (15,) and len(res.energy) >= 1
+    assert np.all(res.tau > 0)
+
+
+def test_paper_mode_runs_and_respects_constraints(tmp_path):
+    fig = make_figure("arm", n_frames=6, n_points=300, n_obs=800, seed=4)
+    st = step2_standin(fig)
+    cfg = JointsConfig(mode="paper", max_iterations=4, joint_tolerance=0.0)
+    res = learn_joints(fig.frames, fig.rest_points, fig.registered, st, cfg)
+    assert res.diagnostics["alpha"][1] == pytest.approx(1.45 * 1e4 * 300)
+    W = res.weights
+    assert np.all(W >= 0) and np.allclose(W.sum(1), 1) and np.all((W > 0).sum(1) <= 4)
+    res.save(tmp_path / "j.npz")
+    back = JointsResult.load(tmp_path / "j.npz")
+    np.testing.assert_array_equal(back.joints_rest, res.joints_rest)
+    assert back.joints().shape == (6, 3, 3)
+
+
+def test_input_errors():
+    fig = make_figure("arm", n_frames=3, n_points=200, n_obs=300)
+    st = step2_standin(fig)
+    with pytest.raises(InputError):
+        learn_joints(fig.frames[:2], fig.rest_points, fig.registered, st)
+    with pytest.raises(InputError):
+        learn_joints(fig.frames, fig.rest_points[:-1], fig.registered, st)
+    with pytest.raises(ConfigError):
+        learn_joints(fig.frames, fig.rest_points, fig.registered, st, JointsConfig(mode="x"))
+
+
+def test_estep_kernel_matches_numpy_reference():
+    from pointrig.joints import e_step, e_step_numpy
+
+    fig = make_figure("human", n_frames=2, n_points=500, n_obs=1500)
+    tau = np.array([6e-4, 2e-4])
+    a = e_step(fig.frames, fig.registered, tau, 0.01, 8, 3.5)
+    b = e_step_numpy(fig.frames, fig.registered, tau, 0.01, 200, 3.5)
+    np.testing.assert_allclose(a.P1, b.P1, atol=1e-10)
+    np.testing.assert_allclose(a.PX, b.PX, atol=1e-10)
+    np.testing.assert_allclose(a.Np, b.Np, rtol=1e-10)
