@@ -37,7 +37,6 @@ from pathlib import Path
 from typing import Any, Callable, Protocol, Sequence
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from . import _core
 from .config import JointsConfig
@@ -197,6 +196,8 @@ def e_step_numpy(
     def one(t: int) -> None:
         V = frames[t]
         N = len(V)
+        from scipy.spatial import cKDTree  # lazy: keeps `import pointrig` light
+
         tree = cKDTree(X[t])
         r = radius_sigmas * np.sqrt(tau[t])
         d, idx = tree.query(V, k=k, distance_upper_bound=r)
