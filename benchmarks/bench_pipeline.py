@@ -6,9 +6,10 @@ variants are scored against the ground-truth joints with ``pointrig.evaluate``:
 
 - ``step2``      joints after the skeletal structure step only;
 - ``step3``      the full pipeline (pointrig defaults);
-- ``paper``      step 3 with the paper's Table 1 variant (no pointrig deviations);
-- ``no_reg``     step 3 without E_Register (zeta = 0);
-- ``no_alpha``   step 3 without the alpha growth (alpha_growth = 1).
+- ``fixed_w``    step 3 keeping the step-2 hard labels as weights (no Eq. 22 updates);
+- ``paper``      step 3 as Algorithm 2 with Table 1 values (no pointrig deviations);
+- ``no_reg``     the paper's step 3 without E_Register (zeta = 0);
+- ``no_alpha``   the paper's step 3 without the alpha growth (alpha_growth = 1).
 
 Prints a table; ``--json FILE`` also writes the rows. Run:
 ``python benchmarks/bench_pipeline.py --frames 100``.
@@ -33,13 +34,18 @@ SUITE = ["human", "upper_body", "arm", "hand", "quadruped", "snake"]
 
 
 def variants(cfg: PipelineConfig) -> dict[str, PipelineConfig]:
+    """Step-3 variants: pointrig's default, the paper's Algorithm 2, and the ablations."""
     j = cfg.joints
-    out = {"step3": cfg}
-    if hasattr(j, "paper_variant"):
-        out["paper"] = dataclasses.replace(cfg, joints=j.paper_variant())
-    out["no_reg"] = dataclasses.replace(cfg, joints=dataclasses.replace(j, zeta=0.0))
-    out["no_alpha"] = dataclasses.replace(cfg, joints=dataclasses.replace(j, alpha_growth=1.0))
-    return out
+    paper = dataclasses.replace(j, mode="paper", gmm_density_normalize=False,
+                                weight_candidates="all", prior_from_weights=False,
+                                joint_tolerance=0.0)
+    return {
+        "step3": cfg,
+        "fixed_w": dataclasses.replace(cfg, joints=dataclasses.replace(j, update_weights=False)),
+        "paper": dataclasses.replace(cfg, joints=paper),
+        "no_reg": dataclasses.replace(cfg, joints=dataclasses.replace(paper, zeta=0.0)),
+        "no_alpha": dataclasses.replace(cfg, joints=dataclasses.replace(paper, alpha_growth=1.0)),
+    }
 
 
 def score(pred: np.ndarray, synth) -> dict:
