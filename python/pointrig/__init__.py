@@ -27,6 +27,7 @@ from .errors import (
     TrackingLostError,
 )
 from .io import read_sequence, write_sequence
+from .registration import RegistrationResult, register_sequence
 from .sequence import PointSequence
 from .skeleton import Skeleton, load_skeleton_json
 
@@ -46,11 +47,13 @@ __all__ = [
     "PointrigError",
     "PreprocessConfig",
     "RegistrationConfig",
+    "RegistrationResult",
     "Skeleton",
     "StructureConfig",
     "TrackingLostError",
     "load_config",
     "load_skeleton_json",
     "read_sequence",
+    "register_sequence",
     "write_sequence",
 ]
