@@ -17,6 +17,8 @@
 //! threads.
 
 #![allow(clippy::needless_range_loop)]
+// `!(x > 0.0)` deliberately also rejects NaN.
+#![allow(clippy::neg_cmp_op_on_partial_ord, clippy::nonminimal_bool)]
 
 use nalgebra::{Matrix3, Matrix6, Rotation3, Vector3, Vector6};
 use rayon::prelude::*;
@@ -134,7 +136,7 @@ impl Graph {
                 "point-node arrays must have shape ({m}, {k})"
             )));
         }
-        if edges.len() % 2 != 0 {
+        if !edges.len().is_multiple_of(2) {
             return Err(CoreError::InvalidInput(
                 "edges must have shape (E, 2)".into(),
             ));
