@@ -28,6 +28,7 @@ from .errors import (
 )
 from .io import read_sequence, write_sequence
 from .joints import JointsResult, learn_joints
+from .registration import RegistrationResult, register_sequence
 from .sequence import PointSequence
 from .skeleton import Skeleton, load_skeleton_json
 from .structure import StructureResult, extract_structure
@@ -49,6 +50,7 @@ __all__ = [
     "PointrigError",
     "PreprocessConfig",
     "RegistrationConfig",
+    "RegistrationResult",
     "Skeleton",
     "StructureConfig",
     "StructureResult",
@@ -58,5 +60,6 @@ __all__ = [
     "load_config",
     "load_skeleton_json",
     "read_sequence",
+    "register_sequence",
     "write_sequence",
 ]

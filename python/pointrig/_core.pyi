@@ -111,3 +111,57 @@ def gmm_estep(
     relative), about 3x faster. Results are bitwise identical for any number of threads.
     Raises ValueError for sigma2 <= 0, omega outside [0, 1), cutoff <= 0 or bad shapes.
     """
+
+class DeformGraph:
+    """Embedded deformation graph (Eq. 2) with the M-step solvers of §4.3 and one-frame EM.
+
+    ``rest (M, 3)``, ``nodes (J, 3)``, ``pn_idx (M, k) int64`` / ``pn_w (M, k)`` (nodes driving
+    each point and weights, normalised per row), ``edges (E, 2) int64`` directed ``(j, k)``,
+    ``k in N(n_j)`` for Eq. 6. Node transforms are ``R (J, 3, 3)``, ``T (J, 3)``.
+    """
+
+    n_nodes: int
+    n_points: int
+    n_edges: int
+
+    def __init__(
+        self,
+        rest: npt.NDArray[np.float64],
+        nodes: npt.NDArray[np.float64],
+        pn_idx: npt.NDArray[np.int64],
+        pn_w: npt.NDArray[np.float64],
+        edges: npt.NDArray[np.int64],
+    ) -> None: ...
+    def deform(self, r: npt.NDArray[np.float64], t: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+        """Deformed points ``y'`` (M, 3), Eq. 2."""
+    def energy(
+        self, r: npt.NDArray[np.float64], t: npt.NDArray[np.float64],
+        r_pre: npt.NDArray[np.float64], t_pre: npt.NDArray[np.float64],
+        p1: npt.NDArray[np.float64], px: npt.NDArray[np.float64],
+        sum_x2: float, n_p: float, sigma2: float, beta_smooth: float, beta_small: float,
+    ) -> float:
+        """Eq. 8a from E-step statistics (``gmm_estep``), E_small relative to ``(r_pre, t_pre)``."""
+    def node_update(
+        self, j: int, r: npt.NDArray[np.float64], t: npt.NDArray[np.float64],
+        r_pre: npt.NDArray[np.float64], t_pre: npt.NDArray[np.float64],
+        p1: npt.NDArray[np.float64], px: npt.NDArray[np.float64],
+        sigma2: float, beta_smooth: float, beta_small: float,
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+        """Closed-form update of node ``j`` with the others fixed (Eqs. 9, 11): ``R_j, T_j``."""
+    def gauss_newton_step(
+        self, r: npt.NDArray[np.float64], t: npt.NDArray[np.float64],
+        p1: npt.NDArray[np.float64], px: npt.NDArray[np.float64],
+        sigma2: float, beta_smooth: float, beta_small: float,
+        damping: float = 0.0, cg_tol: float = 1e-8, cg_max: int = 500,
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+        """One joint Gauss-Newton step on all nodes: new ``R, T``."""
+    def register_frame(
+        self, x: npt.NDArray[np.float64], r: npt.NDArray[np.float64], t: npt.NDArray[np.float64], *,
+        sigma2_start: float, omega: float, beta_smooth: float, beta_relative: bool,
+        beta_small: float, sigma2_min: float, anneal: float, anneal_floor: float,
+        max_iter: int, tol: float, cutoff: float | None, single: bool, rigid_iters: int,
+        solver: str, damping: float, cg_tol: float, cg_max: int,
+    ) -> dict:
+        """Algorithm 1 on one frame (see docs/registration.md): dict with ``R``, ``T``,
+        ``points (M, 3)``, ``sigma2``, ``iterations``, ``energy``, ``n_p``, ``n_data``,
+        ``history (iterations, 2)`` = (sigma^2, energy) per iteration."""

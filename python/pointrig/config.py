@@ -48,21 +48,62 @@ class PreprocessConfig:
 
 @dataclass(frozen=True)
 class RegistrationConfig:
-    """Step 1, non-rigid registration (§4, Eqs. 1-12, Table 1)."""
+    """Step 1, non-rigid registration (§4, Eqs. 1-12, Table 1).
+
+    The paper's parameters keep their Table 1 values. The defaults of the added fields select
+    the improved variant (joint Gauss-Newton M-step, beta_smooth relative to the data term,
+    data-driven coarse sigma^2 start, rigid pre-alignment, constant-velocity prediction);
+    :meth:`paper` returns the plain §4 configuration. Lengths are metres (sigma^2 in m^2):
+    Table 1 / §7.2 values assume metres, so inputs in other units must be scaled on reading.
+    See docs/registration.md for the derivations and the ablation.
+    """
 
     rest_frame: int = 0  # which frame gives the rest pose (§4: "other frames can also be chosen")
     n_rest_points: int = 2000  # M, points of the rest-pose point set surface
     node_spacing: float = 0.0  # deformation-graph node spacing, metres (0 = from n_nodes)
     n_nodes: int = 200  # target node count when node_spacing is 0
     k_point_nodes: int = 4  # nodes driving each point (Eq. 2)
-    k_node_neighbors: int = 6  # node-to-node neighbours for E_smooth (Eq. 6)
+    k_node_neighbors: int = 6  # node-to-node neighbours for E_smooth (Eq. 6), Euclidean k-NN
     omega: float = 0.01  # outlier weight (Eq. 1), Table 1
-    beta_smooth: float = 1e5  # E_smooth weight (Eq. 8a), Table 1
+    beta_smooth: float = 1e5  # E_smooth weight (Eq. 8a), Table 1 (used when beta_smooth_mode="fixed")
     beta_small: float = 1.0  # E_small weight (Eq. 8a), Table 1
-    sigma2_init: float = 6e-4  # initial sigma^2, m^2 (§7.2)
+    sigma2_init: float = 6e-4  # initial sigma^2, m^2 (§7.2); also the lower end of the data start
     max_iterations: int = 20  # EM iterations per frame (§6)
-    tolerance: float = 1e-5  # relative energy change that stops EM
+    tolerance: float = 1e-5  # relative change of Eq. 8a that stops EM (§6)
     seed: int = 0
+    # --- additions (deviations documented in docs/registration.md) ---
+    solver: str = "gauss_newton"  # M-step: "gauss_newton" (joint, all nodes) | "sweeps" (paper §4.3)
+    beta_smooth_mode: str = "relative"  # "relative": beta = beta_smooth_rel * N_p / (sigma^2 * edges); "fixed": paper
+    beta_smooth_rel: float = 0.1  # lambda of the relative mode (smooth weight per edge / data weight per edge)
+    sigma2_start: str = "data"  # per-frame start: "data" (CPD-style, capped) | "fixed" (sigma2_init, paper)
+    sigma2_start_max: float = 0.01  # cap of the data-driven start, m^2 (10 cm std)
+    sigma2_min: float = 1e-5  # floor of Eq. 12 (guards the collapse), m^2
+    sigma2_anneal: float = 0.5  # coarse-to-fine: sigma^2 capped at anneal * previous until sigma2_init (1 = off)
+    rigid_iterations: int = 2  # leading EM iterations that do a global weighted-Kabsch step
+    predict_velocity: float = 1.0  # constant-velocity prediction of node transforms (0 = none)
+    cutoff: float = 5.0  # truncated E-step: pairs beyond cutoff * sigma ignored (0 = dense)
+    single_precision: bool = True  # float32 E-step inner loops (float64 reductions)
+    gn_damping: float = 1e-4  # Levenberg damping of the Gauss-Newton step (x diag)
+    cg_tolerance: float = 1e-6  # relative residual of the block-Jacobi PCG solve
+    cg_max_iterations: int = 300
+    lost_fraction: float = 0.05  # N_p / N below this = tracking lost -> retry coarse
+    sor_neighbors: int = 20  # rest surface: statistical outlier removal, k
+    sor_std_ratio: float = 2.0  # rest surface: keep mean k-NN distance < mean + ratio * std
+    mls_neighbors: int = 16  # rest surface: MLS (local plane) projection neighbours (0 = off)
+
+    @classmethod
+    def paper(cls, **overrides: Any) -> "RegistrationConfig":
+        """The plain §4 configuration (Table 1, node sweeps, fixed sigma^2 start, no extras)."""
+        base = dict(
+            solver="sweeps",
+            beta_smooth_mode="fixed",
+            sigma2_start="fixed",
+            rigid_iterations=0,
+            predict_velocity=0.0,
+            sigma2_anneal=1.0,
+        )
+        base.update(overrides)
+        return cls(**base)
 
 
 @dataclass(frozen=True)

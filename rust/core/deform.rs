@@ -17,6 +17,8 @@
 //! threads.
 
 #![allow(clippy::needless_range_loop)]
+// `!(x > 0.0)` deliberately also rejects NaN.
+#![allow(clippy::neg_cmp_op_on_partial_ord, clippy::nonminimal_bool)]
 
 use nalgebra::{Matrix3, Matrix6, Rotation3, Vector3, Vector6};
 use rayon::prelude::*;
@@ -134,7 +136,7 @@ impl Graph {
                 "point-node arrays must have shape ({m}, {k})"
             )));
         }
-        if edges.len() % 2 != 0 {
+        if !edges.len().is_multiple_of(2) {
             return Err(CoreError::InvalidInput(
                 "edges must have shape (E, 2)".into(),
             ));
@@ -577,6 +579,12 @@ pub struct FrameParams {
     pub beta_small: f64,
     pub sigma2_start: f64,
     pub sigma2_min: f64,
+    /// Coarse-to-fine schedule: during the first `k` iterations, with
+    /// `k = ceil(log(sigma2_start / anneal_floor) / log(1 / anneal))`, sigma^2 is capped at
+    /// `max(anneal * sigma^2, anneal_floor)` (Eq. 12 when lower); afterwards plain Eq. 12.
+    /// `anneal = 1` disables it.
+    pub anneal: f64,
+    pub anneal_floor: f64,
     pub max_iter: usize,
     pub tol: f64,
     pub cutoff: Option<f64>,
@@ -634,6 +642,12 @@ pub fn register_frame(
     let mut iterations = 0;
     let mut history = Vec::new();
     let n_edges = g.n_edges().max(1) as f64;
+    let k_coarse =
+        if p.anneal > 0.0 && p.anneal < 1.0 && s2 > p.anneal_floor && p.anneal_floor > 0.0 {
+            ((s2 / p.anneal_floor).ln() / (1.0 / p.anneal).ln()).ceil() as usize
+        } else {
+            0
+        };
     for it in 0..p.max_iter {
         let y = flat(&g.deform(&st));
         let es = estep(&y, x, s2, p.omega, p.cutoff, p.precision)?;
@@ -670,14 +684,20 @@ pub fn register_frame(
         }
         let yn = g.deform(&st);
         let dsq = Graph::data_sq(&yn, &d);
-        let s2_new = (dsq / (3.0 * n_p)).max(p.sigma2_min);
+        let eq12 = dsq / (3.0 * n_p);
+        let s2_new = if it < k_coarse {
+            eq12.min((p.anneal * s2).max(p.anneal_floor))
+        } else {
+            eq12
+        }
+        .max(p.sigma2_min);
         energy = dsq / (2.0 * s2_new)
             + 1.5 * n_p * s2_new.ln()
             + 0.5 * beta * g.e_smooth(&st)
             + 0.5 * p.beta_small * Graph::e_small(&st, &pre);
         iterations = it + 1;
         history.push((s2_new, energy));
-        let converged = it >= p.rigid_iters
+        let converged = it >= p.rigid_iters.max(k_coarse)
             && e_prev.is_some_and(|e0| (energy - e0).abs() <= p.tol * energy.abs().max(1e-300));
         s2 = s2_new;
         e_prev = Some(energy);

@@ -220,6 +220,8 @@ impl<T: Real> Partial<T> {
 }
 
 const LANES: usize = 8;
+/// Grids with fewer cells than this run the dense kernel instead.
+const DENSE_CELLS: usize = 270;
 const BLOCK: usize = 4;
 
 /// `e[m] = exp(-|y_m - q|^2 inv2s)` (`d2` is scratch); returns `(sum_m e, sum_m e d^2)`.
@@ -353,12 +355,13 @@ fn truncated_chunk<T: Real>(
         kept_e.clear();
         let mut s = 0.0;
         let mut w = 0.0;
-        grid.ranges(qd, |lo, hi| {
-            for k in lo..hi {
+        let (ranges, nr) = grid.block(qd);
+        for &(lo, hi) in &ranges[..nr] {
+            for k in lo as usize..hi as usize {
                 let dx = tpl.yx[k] - q[0];
                 let dy = tpl.yy[k] - q[1];
                 let dz = tpl.yz[k] - q[2];
-                let d2 = dx * dx + dy * dy + dz * dz;
+                let d2 = dx.fma(dx, dy.fma(dy, dz * dz));
                 if d2 < r2 {
                     let v = T::exp_neg(T::ZERO - d2 * inv2s);
                     kept_k.push(k as u32);
@@ -367,7 +370,7 @@ fn truncated_chunk<T: Real>(
                     w += (v * d2).to_f64();
                 }
             }
-        });
+        }
         let den = s + c0;
         let dropped = (m - kept_k.len()) as f64;
         if den > 0.0 {
@@ -522,10 +525,15 @@ fn run<T: Real>(y: &[f64], x: &[f64], sigma2: f64, omega: f64, cutoff: Option<f6
     let c0 = two_pi_s2.powf(1.5) * omega * m as f64 / ((1.0 - omega) * n as f64);
     let inv2s = T::from_f64(1.0 / (2.0 * sigma2));
 
-    let grid = cutoff.map(|cf| {
-        let radius = cf * sigma2.sqrt();
-        (Grid::new(&yc, radius), radius, (-0.5 * cf * cf).exp())
-    });
+    // With a cutoff so wide that a 3x3x3 cell block holds a large share of the template
+    // (fewer than DENSE_CELLS occupied cells, i.e. more than ~10 % of it per query), the
+    // exact dense kernel is faster: it runs instead (bound 0).
+    let grid = cutoff
+        .map(|cf| {
+            let radius = cf * sigma2.sqrt();
+            (Grid::new(&yc, radius), radius, (-0.5 * cf * cf).exp())
+        })
+        .filter(|(g, _, _)| g.n_occupied() >= DENSE_CELLS);
     let order: Vec<usize> = match &grid {
         Some((g, _, _)) => g.order().iter().map(|&k| k as usize).collect(),
         None => (0..m).collect(),

@@ -89,21 +89,33 @@ impl Grid {
         &self.order
     }
 
+    /// Number of cells.
+    pub fn n_cells(&self) -> usize {
+        self.dims[0] * self.dims[1] * self.dims[2]
+    }
+
+    /// Number of non-empty cells.
+    pub fn n_occupied(&self) -> usize {
+        self.start.windows(2).filter(|w| w[1] > w[0]).count()
+    }
+
     /// The side of a cell (at least the `h` asked for).
     pub fn cell_size(&self) -> f64 {
         1.0 / self.inv_h
     }
 
-    /// Call `f(lo, hi)` for each contiguous range `order[lo..hi]` of points in the 3 x 3 x 3
-    /// cells around `q`: a superset of the points within one cell size of `q`.
-    #[inline]
-    pub fn ranges(&self, q: [f64; 3], mut f: impl FnMut(usize, usize)) {
+    /// The contiguous ranges `order[lo..hi]` of points in the 3 x 3 x 3 cells around `q` (a
+    /// superset of the points within one cell size of `q`): `(ranges, count)`.
+    #[inline(always)]
+    pub fn block(&self, q: [f64; 3]) -> ([(u32, u32); 9], usize) {
+        let mut out = [(0u32, 0u32); 9];
+        let mut cnt = 0;
         let mut c = [0i64; 3];
         for a in 0..3 {
             let v = ((q[a] - self.origin[a]) * self.inv_h).floor();
             // Far outside the box: no cell within reach on this axis.
             if v < -1.0 || v > self.dims[a] as f64 {
-                return;
+                return (out, 0);
             }
             c[a] = v as i64;
         }
@@ -115,17 +127,28 @@ impl Grid {
         let x0 = (c[0] - 1).max(0);
         let x1 = (c[0] + 1).min(nx - 1);
         if x0 > x1 {
-            return;
+            return (out, 0);
         }
         for z in (c[2] - 1).max(0)..=(c[2] + 1).min(nz - 1) {
             for y in (c[1] - 1).max(0)..=(c[1] + 1).min(ny - 1) {
                 let row = (z * ny + y) * nx;
-                let lo = self.start[(row + x0) as usize] as usize;
-                let hi = self.start[(row + x1 + 1) as usize] as usize;
+                let lo = self.start[(row + x0) as usize];
+                let hi = self.start[(row + x1 + 1) as usize];
                 if hi > lo {
-                    f(lo, hi);
+                    out[cnt] = (lo, hi);
+                    cnt += 1;
                 }
             }
+        }
+        (out, cnt)
+    }
+
+    /// Call `f(lo, hi)` for each range of [`Grid::block`].
+    #[inline(always)]
+    pub fn ranges(&self, q: [f64; 3], mut f: impl FnMut(usize, usize)) {
+        let (r, n) = self.block(q);
+        for &(lo, hi) in &r[..n] {
+            f(lo as usize, hi as usize);
         }
     }
 }

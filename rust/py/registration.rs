@@ -1,6 +1,9 @@
 //! Bindings for step 1, non-rigid registration (§4): the E-step sufficient statistics and
 //! the deformation graph (`DeformGraph`) with its M-step solvers and per-frame EM.
 
+// `!(x > 0.0)` deliberately also rejects NaN; PyO3 return tuples are spelled out.
+#![allow(clippy::neg_cmp_op_on_partial_ord, clippy::type_complexity)]
+
 use nalgebra::{Matrix3, Vector3};
 use numpy::{
     PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2,
@@ -265,7 +268,7 @@ impl DeformGraph {
     /// `points` (M, 3), `sigma2`, `iterations`, `energy`, `n_p`, `n_data`, `history` (k, 2).
     #[allow(clippy::too_many_arguments)]
     #[pyo3(signature = (x, r, t, *, sigma2_start, omega, beta_smooth, beta_relative, beta_small,
-        sigma2_min, max_iter, tol, cutoff, single, rigid_iters, solver, damping, cg_tol, cg_max))]
+        sigma2_min, anneal, anneal_floor, max_iter, tol, cutoff, single, rigid_iters, solver, damping, cg_tol, cg_max))]
     fn register_frame<'py>(
         &self,
         py: Python<'py>,
@@ -278,6 +281,8 @@ impl DeformGraph {
         beta_relative: bool,
         beta_small: f64,
         sigma2_min: f64,
+        anneal: f64,
+        anneal_floor: f64,
         max_iter: usize,
         tol: f64,
         cutoff: Option<f64>,
@@ -306,6 +311,8 @@ impl DeformGraph {
             beta_small,
             sigma2_start,
             sigma2_min,
+            anneal,
+            anneal_floor,
             max_iter,
             tol,
             cutoff,
