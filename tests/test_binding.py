@@ -49,3 +49,10 @@ def test_wrong_dtype_and_lengths(rng):
         _core.kabsch(rng.normal(size=(10, 3)), rng.normal(size=(9, 3)))
     with pytest.raises(ValueError, match="one entry per point"):
         _core.kabsch(rng.normal(size=(10, 3)), rng.normal(size=(10, 3)), np.ones(3))
+
+
+def test_fortran_ordered_array_is_rejected_not_read_transposed(rng):
+    a = np.asfortranarray(rng.normal(size=(10, 3)))
+    assert a.flags.f_contiguous and not a.flags.c_contiguous
+    with pytest.raises(ValueError, match="C-contiguous"):
+        _core.kabsch(a, np.ascontiguousarray(a))

@@ -200,8 +200,11 @@ def test_estep_kernel_matches_numpy_reference():
 
     fig = make_figure("human", n_frames=2, n_points=500, n_obs=1500)
     tau = np.array([6e-4, 2e-4])
-    a = e_step(fig.frames, fig.registered, tau, 0.01, 8, 3.5)
-    b = e_step_numpy(fig.frames, fig.registered, tau, 0.01, 200, 3.5)
+    # untruncated on both sides: the Rust kernel may fall back to its dense loop when the
+    # window is wide (see rust/core/gmm.rs), so only the dense semantics are comparable here;
+    # the truncated kernel's error bound is tested in tests/test_gmm_estep.py
+    a = e_step(fig.frames, fig.registered, tau, 0.01, 8, 1e6)
+    b = e_step_numpy(fig.frames, fig.registered, tau, 0.01, 500, 1e6)
     np.testing.assert_allclose(a.P1, b.P1, atol=1e-10)
     np.testing.assert_allclose(a.PX, b.PX, atol=1e-10)
     np.testing.assert_allclose(a.Np, b.Np, rtol=1e-10)

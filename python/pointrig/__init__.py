@@ -27,13 +27,29 @@ from .errors import (
     TrackingLostError,
 )
 from .io import read_sequence, write_sequence
-from .joints import JointsResult, learn_joints
-from .registration import RegistrationResult, register_sequence
 from .sequence import PointSequence
 from .skeleton import Skeleton, load_skeleton_json
-from .structure import StructureResult, extract_structure
 
 __version__: str = _core.__version__
+
+# The pipeline steps import scipy (and open3d inside functions); load them on first use so
+# that `import pointrig` and `pointrig --help` stay fast.
+_LAZY = {
+    "RegistrationResult": "registration",
+    "register_sequence": "registration",
+    "StructureResult": "structure",
+    "extract_structure": "structure",
+    "JointsResult": "joints",
+    "learn_joints": "joints",
+}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+    raise AttributeError(f"module 'pointrig' has no attribute {name!r}")
 
 __all__ = [
     "__version__",

@@ -11,6 +11,8 @@ use numpy::{
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
+use super::CSlice;
+
 use super::{flat1, flat2, points, to_array2, to_pyerr};
 use crate::core::lbs::{self, Dims, SparseWeights};
 use crate::core::qp;
@@ -18,7 +20,7 @@ use crate::core::qp;
 fn indices(arr: &PyReadonlyArray2<'_, i64>, name: &str) -> PyResult<(Vec<usize>, usize)> {
     let cols = arr.shape()[1];
     let s = arr
-        .as_slice()
+        .c_slice()
         .map_err(|_| PyValueError::new_err(format!("{name}: array must be C-contiguous")))?;
     let out = s
         .iter()
@@ -32,7 +34,7 @@ fn indices(arr: &PyReadonlyArray2<'_, i64>, name: &str) -> PyResult<(Vec<usize>,
 
 fn parents(arr: &PyReadonlyArray1<'_, i64>) -> PyResult<Vec<i64>> {
     Ok(arr
-        .as_slice()
+        .c_slice()
         .map_err(|_| PyValueError::new_err("bone_parent: array must be contiguous"))?
         .to_vec())
 }
@@ -117,7 +119,7 @@ fn lbs_fit_weights<'py>(
     let z = points(py, &z, "z")?;
     let al = match &allowed {
         Some(al) => Some(
-            al.as_slice()
+            al.c_slice()
                 .map_err(|_| PyValueError::new_err("allowed: array must be C-contiguous"))?
                 .to_vec(),
         ),

@@ -18,6 +18,26 @@ mod joints;
 mod registration;
 mod structure;
 
+/// Borrow a numpy array's data only when it is C-contiguous (row-major).
+///
+/// rust-numpy's `as_slice` also accepts Fortran-ordered arrays, whose flat data would then be
+/// read transposed; every binding goes through this instead.
+pub(crate) trait CSlice<T> {
+    fn c_slice(&self) -> Result<&[T], ()>;
+}
+
+impl<T: numpy::Element, D: numpy::ndarray::Dimension> CSlice<T>
+    for numpy::PyReadonlyArray<'_, T, D>
+{
+    fn c_slice(&self) -> Result<&[T], ()> {
+        if self.is_c_contiguous() {
+            self.as_slice().map_err(|_| ())
+        } else {
+            Err(())
+        }
+    }
+}
+
 /// Map a core error to the matching class of `pointrig.errors` (one place for the mapping).
 pub(crate) fn to_pyerr(py: Python<'_>, err: CoreError) -> PyErr {
     let (class, msg) = match &err {
@@ -50,7 +70,7 @@ pub(crate) fn flat2<'a>(
             shape[0], shape[1]
         )));
     }
-    let s = arr.as_slice().map_err(|_| {
+    let s = arr.c_slice().map_err(|_| {
         PyValueError::new_err(format!(
             "{name}: array must be C-contiguous (use numpy.ascontiguousarray)"
         ))
@@ -75,7 +95,7 @@ pub(crate) fn flat1<'a>(
     name: &str,
 ) -> PyResult<&'a [f64]> {
     let s = arr
-        .as_slice()
+        .c_slice()
         .map_err(|_| PyValueError::new_err(format!("{name}: array must be contiguous")))?;
     check_finite(name, s).map_err(|e| to_pyerr(py, e))?;
     Ok(s)

@@ -11,6 +11,8 @@ use numpy::{
 };
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
+
+use super::CSlice;
 use pyo3::types::PyDict;
 
 use super::{flat1, flat2, points, to_array2, to_pyerr};
@@ -31,7 +33,7 @@ fn read_state(
         )));
     }
     let rsl = r
-        .as_slice()
+        .c_slice()
         .map_err(|_| PyValueError::new_err("R must be C-contiguous"))?;
     check_finite("R", rsl).map_err(|e| to_pyerr(py, e))?;
     let tsl = points(py, t, "T")?;
@@ -90,13 +92,13 @@ impl DeformGraph {
         let k = pn_idx.shape()[1];
         let w = flat2(py, &pn_w, "pn_w", k)?;
         let idx = pn_idx
-            .as_slice()
+            .c_slice()
             .map_err(|_| PyValueError::new_err("pn_idx must be C-contiguous"))?;
         if edges.shape()[1] != 2 {
             return Err(PyValueError::new_err("edges must have shape (E, 2)"));
         }
         let e = edges
-            .as_slice()
+            .c_slice()
             .map_err(|_| PyValueError::new_err("edges must be C-contiguous"))?;
         let g = Graph::new(r, n, idx, w, k, e).map_err(|e| to_pyerr(py, e))?;
         Ok(DeformGraph { g })

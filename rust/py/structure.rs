@@ -8,6 +8,8 @@ use numpy::{
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
+use super::CSlice;
+
 use super::{points, to_array2, to_pyerr};
 use crate::core::cluster;
 use crate::core::error::check_finite;
@@ -27,7 +29,7 @@ fn flat_nd<'a>(
             "{name}: expected {lead} leading dims then {tail:?}, got shape {shape:?}"
         )));
     }
-    let s = arr.as_slice().map_err(|_| {
+    let s = arr.c_slice().map_err(|_| {
         PyValueError::new_err(format!(
             "{name}: array must be C-contiguous (use numpy.ascontiguousarray)"
         ))
@@ -37,7 +39,7 @@ fn flat_nd<'a>(
 }
 
 fn int1<'a>(arr: &'a PyReadonlyArray1<'_, i64>, name: &str) -> PyResult<&'a [i64]> {
-    arr.as_slice()
+    arr.c_slice()
         .map_err(|_| PyValueError::new_err(format!("{name}: int64 array must be contiguous")))
 }
 
@@ -75,7 +77,7 @@ fn cluster_fit<'py>(
     let l = int1(&labels, "labels")?;
     let w = match &weights {
         Some(w) => Some(
-            w.as_slice()
+            w.c_slice()
                 .map_err(|_| PyValueError::new_err("weights must be contiguous"))?,
         ),
         None => None,
@@ -107,7 +109,7 @@ fn cluster_residuals<'py>(
     let (t, _) = flat_nd(py, &translations, "T", 2, &[3])?;
     let c = candidates.shape()[1];
     let cand = candidates
-        .as_slice()
+        .c_slice()
         .map_err(|_| PyValueError::new_err("candidates must be C-contiguous int64"))?;
     let out = py
         .detach(|| cluster::cluster_residuals(q, y, r, t, cand, c))
@@ -137,7 +139,7 @@ fn swap_residuals<'py>(
         return Err(PyValueError::new_err("pairs must be (P, 2)"));
     }
     let p = pairs
-        .as_slice()
+        .c_slice()
         .map_err(|_| PyValueError::new_err("pairs must be C-contiguous int64"))?;
     let out = py
         .detach(|| cluster::swap_residuals(q, y, l, r, t, p))
