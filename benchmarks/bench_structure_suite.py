@@ -104,6 +104,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--blend", type=float, default=0.02)
     ap.add_argument("--smooth", type=int, default=3)
     ap.add_argument("--modes", nargs="*", default=["exact", "degraded"])
+    ap.add_argument("--timing", action="store_true",
+                    help="only time extract_structure on human, S=2000, F=100 (best of 3)")
     ap.add_argument("--set", nargs="*", default=[], metavar="FIELD=VALUE",
                     help="StructureConfig overrides (ablations)")
     a = ap.parse_args(argv)
@@ -112,6 +114,18 @@ def main(argv: list[str] | None = None) -> int:
         k, v = kv.split("=", 1)
         over[k] = type(getattr(StructureConfig(), k))(float(v) if "." in v or "e" in v else v)
     cfg = dataclasses.replace(StructureConfig(), **over)
+    if a.timing:
+        syn = synthesize("human", n_frames=100, seed=0, camera=_TINY_CAMERA,
+                         noise=NoiseConfig.clean(), surface_points=2000)
+        Y = np.ascontiguousarray(syn.surface)
+        ts = []
+        for _ in range(3):
+            t0 = time.perf_counter()
+            r = extract_structure(Y[0], Y, cfg)
+            ts.append(time.perf_counter() - t0)
+        print(f"extract_structure human M={Y.shape[1]} F=100: best {min(ts):.3f} s, "
+              f"clustering {r.diagnostics['time_clustering_s']:.3f} s, {r.n_bones} bones")
+        return 0
     print(f"amplitude {a.amplitude}, F={a.frames}, S~{a.points}, degraded: noise {a.noise} x size "
           f"(abs {a.noise_abs} m), "
           f"blend {a.blend} x size, smooth {a.smooth} frames; overrides {over}")
