@@ -166,3 +166,27 @@ def test_deterministic_given_seed():
     b = extract_structure(d["rest"], d["points"], StructureConfig(n_clusters=15, seed=3))
     np.testing.assert_array_equal(a.labels, b.labels)
     np.testing.assert_array_equal(a.bone_parent, b.bone_parent)
+
+
+def test_batched_blend_pairs_match_per_pair_closed_form():
+    # the band test evaluates every neighbour pair from shared Gram terms; it must equal the
+    # per-pair closed form (and the residual must equal a direct evaluation with that w)
+    from pointrig.structure import _blend_all_pairs, _blend_fit
+
+    rng = np.random.default_rng(3)
+    F, n, K = 7, 25, 4
+    R = Rotation.random(F * K, random_state=4).as_matrix().reshape(F, K, 3, 3)
+    T = rng.normal(size=(F, K, 3))
+    q = rng.normal(size=(n, 3))
+    y = rng.normal(size=(F, n, 3))
+    nb = [0, 2, 3]
+    got = _blend_all_pairs(q, y, R, T, nb)
+    assert len(got) == 3
+    for ia, ib, res, w in got:
+        ref_res, ref_w = _blend_fit(q, y, R, T, nb[ia], nb[ib])
+        np.testing.assert_allclose(w, ref_w, atol=1e-12)
+        assert res == pytest.approx(ref_res, rel=1e-9)
+        xa = np.einsum("fij,nj->fni", R[:, nb[ia]], q) + T[:, nb[ia], None]
+        xb = np.einsum("fij,nj->fni", R[:, nb[ib]], q) + T[:, nb[ib], None]
+        direct = ((y - (1 - w)[None, :, None] * xa - w[None, :, None] * xb) ** 2).sum()
+        assert res == pytest.approx(direct, rel=1e-9)

@@ -533,6 +533,33 @@ def _blend_fit(q: np.ndarray, y: np.ndarray, R: np.ndarray, T: np.ndarray, a: in
     return res, w
 
 
+def _blend_all_pairs(q: np.ndarray, y: np.ndarray, R: np.ndarray, T: np.ndarray,
+                     nb: list[int]) -> list[tuple[int, int, float, np.ndarray]]:
+    """:func:`_blend_fit` for every pair of the bones ``nb`` at once.
+
+    Each bone's motion of the points ``q (n, 3)`` is computed once, then every pair's closed
+    form follows from per-point Gram terms ``<x_k, x_l>``, ``<y, x_k>``, ``<y, y>`` summed over
+    frames. Returns ``(ia, ib, residual m^2, w (n,))`` for ``ia < ib`` (indices into ``nb``).
+    """
+    n = q.shape[0]
+    X = q[None, None] @ R[:, nb].swapaxes(-1, -2) + T[:, nb, None]  # (F, K', n, 3)
+    X2 = np.ascontiguousarray(X.transpose(2, 1, 0, 3)).reshape(n, len(nb), -1)
+    y2 = np.ascontiguousarray(y.transpose(1, 0, 2)).reshape(n, -1, 1)
+    G = (X2 @ X2.transpose(0, 2, 1)).transpose(1, 2, 0)  # (K', K', n)
+    yx = (X2 @ y2)[..., 0].T  # (K', n)
+    yy = (y2[..., 0] ** 2).sum(1)  # (n,)
+    out = []
+    for ia in range(len(nb)):
+        for ib in range(ia + 1, len(nb)):
+            den = G[ib, ib] - 2.0 * G[ia, ib] + G[ia, ia]  # |x_b - x_a|^2
+            num = yx[ib] - yx[ia] - G[ia, ib] + G[ia, ia]  # <y - x_a, x_b - x_a>
+            w = np.clip(num / np.maximum(den, 1e-300), 0.0, 1.0)
+            rr = yy - 2.0 * yx[ia] + G[ia, ia]  # |y - x_a|^2
+            res = float(np.maximum(rr - 2.0 * w * num + w * w * den, 0.0).sum())
+            out.append((ia, ib, res, w))
+    return out
+
+
 def _prune(ctx: _Ctx, labels: np.ndarray, parent: np.ndarray, joints: np.ndarray,
            counts: np.ndarray, diag: dict[str, Any]) -> np.ndarray | None:
     """One pruning step of §5.4 on the tree; returns new labels or ``None`` if nothing to do.
@@ -569,17 +596,15 @@ def _prune(ctx: _Ctx, labels: np.ndarray, parent: np.ndarray, joints: np.ndarray
         sel = np.flatnonzero(labels == b)
         sub = sel[:: max(1, len(sel) // _BAND_SAMPLE)]  # deterministic subsample, for speed
         q, y = ctx.Q[sub], ctx.Y[:, sub]
+        n = len(sub)
         own = ((y - q[None] @ R[:, b].transpose(0, 2, 1) - T[:, b, None]) ** 2).sum()
-        for ia in range(len(nb)):
-            for ib in range(ia + 1, len(nb)):
-                res, w = _blend_fit(q, y, R, T, nb[ia], nb[ib])
-                # compare residual variances per degree of freedom: the rigid fit spends 6
-                # per frame, the blend one per point
-                n = len(sub)
-                ratio = (res / max(ctx.F * 3 * n - n, 1)) / max(
-                    own / max(ctx.F * (3 * n - 6), 1), 1e-300)
-                if ratio <= cfg.band_ratio:
-                    bands.append((ratio, b, nb[ia], nb[ib], sel, w))
+        for ia, ib, res, w in _blend_all_pairs(q, y, R, T, nb):
+            # compare residual variances per degree of freedom: the rigid fit spends 6
+            # per frame, the blend one per point
+            ratio = (res / max(ctx.F * 3 * n - n, 1)) / max(
+                own / max(ctx.F * (3 * n - 6), 1), 1e-300)
+            if ratio <= cfg.band_ratio:
+                bands.append((ratio, b, nb[ia], nb[ib], sel, w))
     if bands:
         ratio, b, a, c, sel, _w = min(bands, key=lambda x: x[0])
         _res, w = _blend_fit(ctx.Q[sel], ctx.Y[:, sel], R, T, a, c)

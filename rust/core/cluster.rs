@@ -140,27 +140,41 @@ pub fn fit_clusters(
             (ws, if ws > 0.0 { c / ws } else { c })
         })
         .collect();
-    let fits: Vec<(Matrix3<f64>, Vector3<f64>)> = (0..f * k)
+    // centred rest points (frame independent), then per frame one sequential pass over the
+    // points accumulating, per cluster, sum w y and A = sum w y (q - cs)^T, which equals
+    // sum w (y - cd)(q - cs)^T because sum w (q - cs) = 0. Parallel over frames.
+    let centred: Vec<Vector3<f64>> = (0..m)
+        .map(|i| match labels[i] {
+            l if l >= 0 => v3(rest, i) - rest_stats[l as usize].1,
+            _ => Vector3::zeros(),
+        })
+        .collect();
+    let fits: Vec<(Matrix3<f64>, Vector3<f64>)> = (0..f)
         .into_par_iter()
-        .map(|idx| {
-            let (t, c) = (idx / k, idx % k);
-            let (ws, cs) = rest_stats[c];
-            if ws <= 0.0 {
-                return (Matrix3::identity(), Vector3::zeros());
-            }
+        .flat_map_iter(|t| {
             let frame = &points[t * 3 * m..(t + 1) * 3 * m];
-            let mut cd = Vector3::zeros();
-            for &i in &members[c] {
-                cd += v3(frame, i) * wt(i);
+            let mut sy = vec![Vector3::<f64>::zeros(); k];
+            let mut a = vec![Matrix3::<f64>::zeros(); k];
+            for (i, &l) in labels.iter().enumerate() {
+                let w = wt(i);
+                if l < 0 || w <= 0.0 {
+                    continue;
+                }
+                let wy = v3(frame, i) * w;
+                sy[l as usize] += wy;
+                a[l as usize] += wy * centred[i].transpose();
             }
-            cd /= ws;
-            // A = sum w (y - cd)(q - cs)^T; R maximises tr(A^T R) (Lemma 1)
-            let mut a = Matrix3::zeros();
-            for &i in &members[c] {
-                a += (v3(frame, i) - cd) * (v3(rest, i) - cs).transpose() * wt(i);
-            }
-            let r = rotation_maximizing_trace(&a);
-            (r, cd - r * cs)
+            (0..k)
+                .map(|c| {
+                    let (ws, cs) = rest_stats[c];
+                    if ws <= 0.0 {
+                        return (Matrix3::identity(), Vector3::zeros());
+                    }
+                    let cd = sy[c] / ws;
+                    let r = rotation_maximizing_trace(&a[c]);
+                    (r, cd - r * cs)
+                })
+                .collect::<Vec<_>>()
         })
         .collect();
     let mut r = Vec::with_capacity(9 * f * k);
@@ -207,6 +221,9 @@ pub fn cluster_residuals(
             "candidate bone {bad} out of range for {k} bones"
         )));
     }
+    // transforms unpacked once (F * K small matrices), then one pass per point
+    let mats: Vec<(Matrix3<f64>, Vector3<f64>)> =
+        (0..f * k).map(|idx| (m3(r, idx), v3(t, idx))).collect();
     let mut out = vec![0.0; m * c];
     out.par_chunks_mut(c).enumerate().for_each(|(i, row)| {
         let q = v3(rest, i);
@@ -218,10 +235,11 @@ pub fn cluster_residuals(
         }
         for tt in 0..f {
             let y = v3(points, tt * m + i);
+            let fr = &mats[tt * k..(tt + 1) * k];
             for (slot, &b) in row.iter_mut().zip(cand) {
                 if b >= 0 {
-                    let idx = tt * k + b as usize;
-                    *slot += (y - m3(r, idx) * q - v3(t, idx)).norm_squared();
+                    let (rot, tr) = &fr[b as usize];
+                    *slot += (y - rot * q - tr).norm_squared();
                 }
             }
         }
