@@ -212,6 +212,9 @@ class JointsConfig:
     # --- truncated E-step (Eq. 4 restricted to near neighbours) ---
     estep_neighbors: int = 8  # nearest deformed points considered per observed point
     estep_radius_sigmas: float = 3.5  # ... and only within this many sqrt(tau^t)
+    estep_single: bool = True  # float32 distances/exponentials, float64 sums (~1e-6 relative)
+    estep_max_points: int = 4000  # subsample each frame to at most this many observed points for
+    #   the E-step (evenly along the sensor order); 0 = all points
 
 
 @dataclass(frozen=True)

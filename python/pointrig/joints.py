@@ -142,25 +142,52 @@ def e_step(
     tau: np.ndarray,
     omega: float,
     n_neighbors: int = 8,
-    radius_sigmas: float = 3.5,
+    radius_sigmas: float | None = 3.5,
+    single: bool = False,
+    *,
+    packed: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> EStats:
-    """Posteriors of Eq. 4 (form of §6.2) per frame, with the Rust GMM kernel
-    (``_core.gmm_estep``, truncated at ``radius_sigmas * sqrt(tau^t)``, rayon inside).
+    """Posteriors of Eq. 4 (form of §6.2) of every frame in one Rust call
+    (``_core.lbs_estep_frames``: parallel over frames, each truncated at
+    ``radius_sigmas * sqrt(tau^t)``; ``None`` = dense; ``single`` = float32 distances and
+    exponentials with float64 sums).
 
     ``n_neighbors`` is only used by the numpy reference :func:`e_step_numpy`.
     Shapes: ``frames`` F arrays ``(N_t, 3)``; ``X (F, M, 3)``; ``tau (F,)`` m^2.
+    ``packed`` = ``(V, offsets)`` from :func:`pack_frames` (skips the concatenation).
     """
     F, M, _ = X.shape
-    P1 = np.zeros((F, M))
-    PX = np.zeros((F, M, 3))
-    Np = np.zeros(F)
-    sxx = np.zeros(F)
-    for t in range(F):
-        p1, _, px, stats = _core.gmm_estep(np.ascontiguousarray(X[t]), frames[t], float(tau[t]),
-                                           float(omega), float(radius_sigmas))
-        P1[t], PX[t] = p1, px
-        Np[t], sxx[t] = stats["n_p"], stats["sum_x2"]
-    return EStats(P1, PX, Np, sxx)
+    V, offsets = packed if packed is not None else pack_frames(frames)
+    P1, PX, Np, sxx = _core.lbs_estep_frames(
+        np.ascontiguousarray(X.reshape(F * M, 3)), V, offsets,
+        np.ascontiguousarray(tau, dtype=np.float64), float(omega),
+        None if radius_sigmas is None else float(radius_sigmas), bool(single))
+    return EStats(P1.reshape(F, M), PX.reshape(F, M, 3), Np, sxx)
+
+
+def pack_frames(frames: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Concatenate ``F`` frames ``(N_t, 3)`` into ``V (sum N_t, 3)`` and ``offsets (F+1,)``."""
+    offsets = np.zeros(len(frames) + 1, dtype=np.int64)
+    offsets[1:] = np.cumsum([len(v) for v in frames])
+    V = np.ascontiguousarray(np.concatenate(frames, axis=0), dtype=np.float64)
+    return V, offsets
+
+
+def subsample_frames(frames: Sequence[np.ndarray], max_points: int) -> list[np.ndarray]:
+    """Deterministic even subsampling: every frame keeps at most ``max_points`` of its points
+    (a fixed stride through the frame's order, so the sensor's spatial coverage is kept).
+    ``max_points <= 0`` keeps everything."""
+    if max_points <= 0:
+        return list(frames)
+    out = []
+    for v in frames:
+        n = len(v)
+        if n <= max_points:
+            out.append(v)
+        else:
+            sel = np.floor(np.arange(max_points) * (n / max_points)).astype(np.int64)
+            out.append(np.ascontiguousarray(v[sel]))
+    return out
 
 
 def e_step_numpy(
@@ -301,6 +328,7 @@ def solve_joints_articulated(
         ``(F, B, 3)`` chain-consistent translations.
     """
     F, B = R.shape[:2]
+    M = Q.shape[0]
     edges = np.flatnonzero(parent >= 0)
     root = int(np.flatnonzero(parent < 0)[0])
     joints = np.array(c_prior, dtype=float, copy=True)
@@ -309,24 +337,26 @@ def solve_joints_articulated(
     idx, w = _dense_to_sparse(W, int(max(1, (W > 0).sum(1).max())))
     Rf = np.ascontiguousarray(R.reshape(F * B, 9))
     s = _core.lbs_skin(Q, idx, w, Rf, np.zeros((F * B, 3)), F).reshape(F, -1, 3)
-    r0 = z - s
-    S0 = a.sum(1)
-    S0s = np.where(S0 > 0, S0, 1.0)
-    d0 = np.einsum("fm,fmi->fi", a, r0)
+    r0 = np.ascontiguousarray((z - s).reshape(F * M, 3))
+    a = np.ascontiguousarray(a, dtype=np.float64)
     if edges.size == 0:
-        T_root = d0 / S0s[:, None]
+        S0 = a.sum(1)
+        S0s = np.where(S0 > 0, S0, 1.0)
+        T_root = np.einsum("fm,fmi->fi", a, r0.reshape(F, M, 3)) / S0s[:, None]
         return joints, np.broadcast_to(T_root[:, None], (F, B, 3)).copy()
-    ws = W @ S[edges].T  # (M, E)
-    aws = a[:, :, None] * ws[None]  # (F, M, E)
-    S1 = aws.sum(1)  # (F, E)
-    S2 = np.einsum("fme,mg->feg", aws, ws, optimize=True)  # (F, E, E)
-    d1 = np.einsum("fme,fmi->fei", aws, r0, optimize=True)  # (F, E, 3)
+    ws = np.ascontiguousarray(W @ S[edges].T)  # (M, E)
+    E = len(edges)
+    # per-frame sums over points (Rust, parallel over frames, sparse in ws)
+    S0, d0, S1, S2, d1 = _core.lbs_joint_normal_sums(ws, a, r0)
+    S2, d1 = S2.reshape(F, E, E), d1.reshape(F, E, 3)
+    S0s = np.where(S0 > 0, S0, 1.0)
     K = S2 - S1[:, :, None] * S1[:, None, :] / S0s[:, None, None]
     A = R[:, parent[edges]] - R[:, edges]  # (F, E, 3, 3)
-    E = len(edges)
-    H = np.einsum("teg,teji,tgjk->eigk", K, A, A, optimize=True).reshape(3 * E, 3 * E)
+    # (F, E, E, 3, 3) products first: plain einsums (no BLAS dispatch for these tiny blocks)
+    AA = np.einsum("teji,tgjk->tegik", A, A)
+    H = np.einsum("teg,tegik->eigk", K, AA).reshape(3 * E, 3 * E)
     rhs_v = d1 - S1[:, :, None] * (d0 / S0s[:, None])[:, None, :]
-    rhs = np.einsum("teji,tej->ei", A, rhs_v, optimize=True)
+    rhs = np.einsum("teji,tej->ei", A, rhs_v)
     lam = prior_weight * S2[:, np.arange(E), np.arange(E)].mean(0)  # (E,)
     lam = np.maximum(lam, 1e-12 * max(1.0, float(np.abs(H).max())))
     H[np.arange(3 * E), np.arange(3 * E)] += np.repeat(lam, 3)
@@ -495,6 +525,10 @@ def learn_joints(
     elif cfg.weight_candidates != "all":
         raise ConfigError(f"joints.weight_candidates must be 'all' or 'tree', got {cfg.weight_candidates!r}")
     X = skin_all(W, R, T)
+    # observed points used by the E-step: subsampled per frame (the statistics scale with N_t,
+    # which gmm_density_normalize divides out), packed once for the Rust kernel
+    obs = subsample_frames(frames, cfg.estep_max_points) if cfg.use_gmm else []
+    packed = pack_frames(obs) if cfg.use_gmm else None
     joints0 = joints.copy()
     prev_total = None
     it = 0
@@ -502,11 +536,12 @@ def learn_joints(
         t0 = time.perf_counter()
         # ---- E-step (Eq. 4 form) and the reduced data term
         if cfg.use_gmm:
-            st = e_step(frames, X, tau, cfg.omega, cfg.estep_neighbors, cfg.estep_radius_sigmas)
+            st = e_step(obs, X, tau, cfg.omega, cfg.estep_neighbors, cfg.estep_radius_sigmas,
+                        cfg.estep_single, packed=packed)
             a_g = st.P1 / tau[:, None]
             if cfg.gmm_density_normalize:
                 # one unit of evidence per template point, not per observed point (N_t / M)
-                a_g = a_g * (M / np.array([len(v) for v in frames], float))[:, None]
+                a_g = a_g * (M / np.array([len(v) for v in obs], float))[:, None]
             if cfg.gmm_robust > 0 and cfg.zeta > 0:
                 # down-weight GMM targets that disagree with the registration (occlusion,
                 # mismatched surfaces): Cauchy weight on |PX/P1 - y| in units of sqrt(tau)
