@@ -255,3 +255,22 @@ def test_subsample_frames_is_even_and_bounded():
     assert out[0].shape == (4, 3) and out[1].shape == (3, 3)
     np.testing.assert_array_equal(out[0][:, 0], [0.0, 6.0, 15.0, 21.0])  # rows 0, 2, 5, 7
     assert subsample_frames([v], 0)[0] is v
+
+
+def test_final_weights_blend_without_moving_the_joints():
+    fig = make_figure("arm", n_frames=10, n_points=500, n_obs=1500, seed=4)
+    st = step2_standin(fig)
+    base = dict(update_weights=False, max_iterations=4)
+    a = learn_joints(fig.frames, fig.rest_points, fig.registered, st,
+                     JointsConfig(final_weights=True, **base))
+    b = learn_joints(fig.frames, fig.rest_points, fig.registered, st,
+                     JointsConfig(final_weights=False, **base))
+    np.testing.assert_allclose(a.joints_rest, b.joints_rest)  # output-only fit
+    np.testing.assert_allclose(a.R, b.R)
+    hard = np.zeros_like(b.weights)
+    hard[np.arange(len(st.labels)), st.labels] = 1.0
+    np.testing.assert_array_equal(b.weights, hard)
+    W = a.weights
+    assert np.all(W >= 0) and np.allclose(W.sum(1), 1) and np.all((W > 0).sum(1) <= 4)
+    blended = (W > 1e-3).sum(1) > 1
+    assert blended.mean() > 0.05  # the synthetic figure is blended near its joints

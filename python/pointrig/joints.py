@@ -48,6 +48,8 @@ __all__ = ["JointsResult", "StructureLike", "learn_joints", "e_step", "e_step_nu
 
 log = logging.getLogger(__name__)
 _N_THREADS = max(1, min(4, os.cpu_count() or 1))
+#: subject size (rest bounding-box diagonal, m) the paper's tau_init = 6e-4 m^2 refers to
+_REFERENCE_SIZE = 1.8
 
 
 class StructureLike(Protocol):
@@ -499,7 +501,12 @@ def learn_joints(
     joints = np.array(structure.joints_rest, dtype=float)
     W = np.zeros((M, B))
     W[np.arange(M), np.asarray(structure.labels)] = 1.0
-    tau = np.full(F, cfg.tau_init)
+    tau0 = cfg.tau_init
+    if cfg.tau_init_relative:
+        size = float(np.linalg.norm(Q.max(0) - Q.min(0)))
+        tau0 = cfg.tau_init * (size / _REFERENCE_SIZE) ** 2 if size > 0 else cfg.tau_init
+    tau = np.full(F, max(tau0, cfg.tau_min))
+    zeta = cfg.zeta * cfg.zeta_scale
     alpha = cfg.alpha_init if cfg.alpha_init is not None else cfg.zeta * M
     articulated = cfg.mode == "articulated"
     c_prior = c_tilde.copy()
@@ -542,18 +549,18 @@ def learn_joints(
             if cfg.gmm_density_normalize:
                 # one unit of evidence per template point, not per observed point (N_t / M)
                 a_g = a_g * (M / np.array([len(v) for v in obs], float))[:, None]
-            if cfg.gmm_robust > 0 and cfg.zeta > 0:
+            if cfg.gmm_robust > 0 and zeta > 0:
                 # down-weight GMM targets that disagree with the registration (occlusion,
                 # mismatched surfaces): Cauchy weight on |PX/P1 - y| in units of sqrt(tau)
                 zg = st.PX / np.maximum(st.P1, 1e-300)[..., None]
                 r2 = np.sum((zg - Y) ** 2, axis=2) / (cfg.gmm_robust ** 2 * tau[:, None])
                 a_g = a_g / (1.0 + r2)
-            a = a_g + cfg.zeta
-            num = a_g[..., None] * (st.PX / np.maximum(st.P1, 1e-300)[..., None]) + cfg.zeta * Y
+            a = a_g + zeta
+            num = a_g[..., None] * (st.PX / np.maximum(st.P1, 1e-300)[..., None]) + zeta * Y
         else:
             st = None
-            a = np.full((F, M), cfg.zeta)
-            num = cfg.zeta * Y
+            a = np.full((F, M), zeta)
+            num = zeta * Y
         safe = np.where(a > 0, a, 1.0)
         z = np.where((a > 0)[..., None], num / safe[..., None], X)
         a = np.ascontiguousarray(a)
@@ -615,10 +622,10 @@ def learn_joints(
         if articulated:
             lam_scale = cfg.eta * cfg.joint_prior * float(np.mean(a.sum(1)))
             e_joint = lam_scale * e_prior
-            total = e_gmm + 0.5 * cfg.zeta * e_reg + 0.5 * e_joint + 0.5 * cfg.gamma * e_small
+            total = e_gmm + 0.5 * zeta * e_reg + 0.5 * e_joint + 0.5 * cfg.gamma * e_small
         else:
             e_joint = cfg.eta * e_prior + e_joint_cons
-            total = e_gmm + 0.5 * cfg.zeta * e_reg + 0.5 * alpha * e_joint + 0.5 * cfg.gamma * e_small
+            total = e_gmm + 0.5 * zeta * e_reg + 0.5 * alpha * e_joint + 0.5 * cfg.gamma * e_small
         energy.append(float(total))
         shift = float(np.max(np.linalg.norm(joints - joints0, axis=1))) if it == 1 else float(
             np.max(np.linalg.norm(joints - diag["_prev_joints"], axis=1)))  # type: ignore[arg-type]
@@ -640,6 +647,12 @@ def learn_joints(
             break
         prev_total = total
     diag.pop("_prev_joints", None)
+    if not cfg.update_weights and cfg.final_weights:
+        # blend weights for the output only (Eq. 22 once, with the last data term)
+        Rf, Tf = _flat_rt(R, T)
+        idx, w, _ = _core.lbs_fit_weights(Q, Rf, Tf, a, zf, F, K, allowed)
+        Wn = _sparse_to_dense(idx, w, B)
+        W = np.where((a.sum(0) > 0)[:, None], Wn, W)
     out_diag: dict[str, Any] = dict(diag)
     out_diag["iterations"] = it
     out_diag["mode"] = cfg.mode
