@@ -102,19 +102,19 @@ pub fn estep_frames(
     Ok(out)
 }
 
+/// One frame's `(S0, d0, S1, S2, d1)` of [`joint_normal_sums`].
+type FrameSums = (f64, [f64; 3], Vec<f64>, Vec<f64>, Vec<f64>);
+
 /// Per-frame sums of the articulated joint solve (docs/joints.md, deviation 1):
 /// `S0 = sum_m a`, `d0 = sum_m a r`, `S1_e = sum_m a ws_me`, `S2_eg = sum_m a ws_me ws_mg`,
 /// `d1_e = sum_m a ws_me r_m` for every frame, with `ws (M*E)` (subtree weight sums),
 /// `a (F*M)`, `r (F*M*3)`. Returns flat `(S0 (F), d0 (F*3), S1 (F*E), S2 (F*E*E), d1 (F*E*3))`.
 /// Parallel over frames; only the non-zero entries of each `ws` row are visited.
-pub fn joint_normal_sums(
-    ws: &[f64],
-    e: usize,
-    a: &[f64],
-    r: &[f64],
-) -> CoreResult<[Vec<f64>; 5]> {
+pub fn joint_normal_sums(ws: &[f64], e: usize, a: &[f64], r: &[f64]) -> CoreResult<[Vec<f64>; 5]> {
     if e == 0 || !ws.len().is_multiple_of(e) {
-        return Err(CoreError::InvalidInput("joint_normal_sums: ws must be (M, E), E > 0".into()));
+        return Err(CoreError::InvalidInput(
+            "joint_normal_sums: ws must be (M, E), E > 0".into(),
+        ));
     }
     let m = ws.len() / e;
     if m == 0 || !a.len().is_multiple_of(m) || r.len() != 3 * a.len() {
@@ -128,9 +128,15 @@ pub fn joint_normal_sums(
     // sparse rows of ws (frame independent)
     let rows: Vec<Vec<(usize, f64)>> = ws
         .chunks_exact(e)
-        .map(|row| row.iter().copied().enumerate().filter(|&(_, v)| v != 0.0).collect())
+        .map(|row| {
+            row.iter()
+                .copied()
+                .enumerate()
+                .filter(|&(_, v)| v != 0.0)
+                .collect()
+        })
         .collect();
-    let per: Vec<(f64, [f64; 3], Vec<f64>, Vec<f64>, Vec<f64>)> = (0..f)
+    let per: Vec<FrameSums> = (0..f)
         .into_par_iter()
         .map(|t| {
             let mut s0 = 0.0;
