@@ -208,3 +208,69 @@ def test_estep_kernel_matches_numpy_reference():
     np.testing.assert_allclose(a.P1, b.P1, atol=1e-10)
     np.testing.assert_allclose(a.PX, b.PX, atol=1e-10)
     np.testing.assert_allclose(a.Np, b.Np, rtol=1e-10)
+
+
+def test_batched_estep_matches_per_frame_kernel_and_single_precision():
+    from pointrig.joints import e_step
+
+    fig = make_figure("human", n_frames=3, n_points=400, n_obs=900)
+    tau = np.array([6e-4, 3e-4, 1e-4])
+    got = e_step(fig.frames, fig.registered, tau, 0.01, radius_sigmas=3.5)
+    for t in range(3):
+        p1, _, px, stats = _core.gmm_estep(fig.registered[t], fig.frames[t], tau[t], 0.01, 3.5)
+        np.testing.assert_allclose(got.P1[t], p1, atol=1e-12)
+        np.testing.assert_allclose(got.PX[t], px, atol=1e-12)
+        assert got.Np[t] == pytest.approx(stats["n_p"], rel=1e-12)
+        assert got.sxx[t] == pytest.approx(stats["sum_x2"], rel=1e-12)
+    single = e_step(fig.frames, fig.registered, tau, 0.01, radius_sigmas=3.5, single=True)
+    np.testing.assert_allclose(single.P1, got.P1, atol=1e-4)
+    np.testing.assert_allclose(single.PX, got.PX, atol=1e-4)
+
+
+def test_joint_normal_sums_match_numpy():
+    rng = np.random.default_rng(3)
+    F, M, E = 4, 50, 5
+    ws = rng.random((M, E)) * (rng.random((M, E)) > 0.5)
+    a = rng.random((F, M))
+    a[1, :10] = 0.0
+    r = rng.normal(size=(F * M, 3))
+    S0, d0, S1, S2, d1 = _core.lbs_joint_normal_sums(ws, a, r)
+    r3 = r.reshape(F, M, 3)
+    np.testing.assert_allclose(S0, a.sum(1), rtol=1e-12)
+    np.testing.assert_allclose(d0, np.einsum("fm,fmi->fi", a, r3), rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(S1, a @ ws, rtol=1e-12)
+    np.testing.assert_allclose(S2.reshape(F, E, E), np.einsum("fm,me,mg->feg", a, ws, ws),
+                               rtol=1e-12)
+    np.testing.assert_allclose(d1.reshape(F, E, 3), np.einsum("fm,me,fmi->fei", a, ws, r3),
+                               rtol=1e-12, atol=1e-12)
+    with pytest.raises(ValueError):
+        _core.lbs_joint_normal_sums(ws, a[:, :-1], r)
+
+
+def test_subsample_frames_is_even_and_bounded():
+    from pointrig.joints import subsample_frames
+
+    v = np.arange(30, dtype=float).reshape(10, 3)
+    out = subsample_frames([v, v[:3]], 4)
+    assert out[0].shape == (4, 3) and out[1].shape == (3, 3)
+    np.testing.assert_array_equal(out[0][:, 0], [0.0, 6.0, 15.0, 21.0])  # rows 0, 2, 5, 7
+    assert subsample_frames([v], 0)[0] is v
+
+
+def test_final_weights_blend_without_moving_the_joints():
+    fig = make_figure("arm", n_frames=10, n_points=500, n_obs=1500, seed=4)
+    st = step2_standin(fig)
+    base = dict(update_weights=False, max_iterations=4)
+    a = learn_joints(fig.frames, fig.rest_points, fig.registered, st,
+                     JointsConfig(final_weights=True, **base))
+    b = learn_joints(fig.frames, fig.rest_points, fig.registered, st,
+                     JointsConfig(final_weights=False, **base))
+    np.testing.assert_allclose(a.joints_rest, b.joints_rest)  # output-only fit
+    np.testing.assert_allclose(a.R, b.R)
+    hard = np.zeros_like(b.weights)
+    hard[np.arange(len(st.labels)), st.labels] = 1.0
+    np.testing.assert_array_equal(b.weights, hard)
+    W = a.weights
+    assert np.all(W >= 0) and np.allclose(W.sum(1), 1) and np.all((W > 0).sum(1) <= 4)
+    blended = (W > 1e-3).sum(1) > 1
+    assert blended.mean() > 0.05  # the synthetic figure is blended near its joints

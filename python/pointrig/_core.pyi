@@ -79,6 +79,24 @@ def lbs_sweep_articulated(
     n_frames: int,
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
     """Joint-constrained sweep: each bone rotates about its head joint with its subtree."""
+def lbs_estep_frames(
+    x: npt.NDArray[np.float64], v: npt.NDArray[np.float64], offsets: npt.NDArray[np.int64],
+    tau: npt.NDArray[np.float64], omega: float, cutoff: float | None = None,
+    single: bool = False,
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64],
+           npt.NDArray[np.float64]]:
+    """E-step (Eq. 4, §6.2 form) of every frame in one call, parallel over frames: centroids
+    ``x (F*M, 3)``, observed points ``v (sum N_t, 3)`` with frame t in rows
+    ``offsets[t]:offsets[t+1]`` (``offsets (F+1,)``), ``tau (F,)`` m^2; ``cutoff`` and
+    ``single`` as in :func:`gmm_estep`. Returns ``P1 (F, M)``, ``PX (F*M, 3)``, ``N_p (F,)``,
+    ``sum_i Pt1_i |v_i|^2 (F,)``."""
+def lbs_joint_normal_sums(
+    ws: npt.NDArray[np.float64], a: npt.NDArray[np.float64], r: npt.NDArray[np.float64],
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64],
+           npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """Per-frame sums of the articulated joint solve with ``ws (M, E)``, ``a (F, M)``,
+    ``r (F*M, 3)``: ``S0 (F,) = sum a``, ``d0 (F, 3) = sum a r``, ``S1 (F, E) = a @ ws``,
+    ``S2 (F, E*E) = sum a ws_e ws_g``, ``d1 (F, E*3) = sum a ws_e r``."""
 def simplex_qp(h: npt.NDArray[np.float64], g: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """Exact argmin of ``0.5 w'Hw - g'w`` s.t. ``w >= 0, sum w = 1`` (k <= 8)."""
 def gmm_estep(

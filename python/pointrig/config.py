@@ -204,7 +204,16 @@ class JointsConfig:
     use_gmm: bool = True  # include E_GMM (Eq. 18); False = registered points only (Fig. 4d)
     weight_candidates: str = "tree"  # Eq. 22 bone choice among "all" bones (paper) or only the
     #   point's step-2 bone and its tree neighbours ("tree": LBS weights stay local)
-    update_weights: bool = True  # Eq. 22 weight updates (False keeps the step-2 labels)
+    update_weights: bool = False  # Eq. 22 weight updates inside the EM loop (True = the
+    #   paper). Off by default: on the real pipeline the per-iteration weight fits absorb
+    #   registration sliding and drag the joints (docs/joints.md, suite ablation)
+    final_weights: bool = True  # when update_weights is False: one Eq. 22 fit after the loop,
+    #   so the output still has 4-sparse blend weights (joints/transforms are not affected)
+    zeta_scale: float = 0.01  # E_Register weight used = zeta * zeta_scale: with the GMM term
+    #   density-normalised, zeta = 1e4 lets the (sliding) registration outweigh the data;
+    #   1 = Table 1 (the "paper" benchmark variant)
+    tau_init_relative: bool = True  # scale tau_init by (subject size / 1.8 m)^2 (the paper's
+    #   6e-4 m^2 is for human-sized subjects; size = rest-point bounding-box diagonal)
     joint_tolerance: float = 5e-4  # also stop when no joint moved more than this (m) in an
     #   iteration (after min_iterations); 0 = the paper's energy criterion only
     min_iterations: int = 3
@@ -212,6 +221,9 @@ class JointsConfig:
     # --- truncated E-step (Eq. 4 restricted to near neighbours) ---
     estep_neighbors: int = 8  # nearest deformed points considered per observed point
     estep_radius_sigmas: float = 3.5  # ... and only within this many sqrt(tau^t)
+    estep_single: bool = True  # float32 distances/exponentials, float64 sums (~1e-6 relative)
+    estep_max_points: int = 4000  # subsample each frame to at most this many observed points for
+    #   the E-step (evenly along the sensor order); 0 = all points
 
 
 @dataclass(frozen=True)

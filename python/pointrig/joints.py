@@ -48,6 +48,8 @@ __all__ = ["JointsResult", "StructureLike", "learn_joints", "e_step", "e_step_nu
 
 log = logging.getLogger(__name__)
 _N_THREADS = max(1, min(4, os.cpu_count() or 1))
+#: subject size (rest bounding-box diagonal, m) the paper's tau_init = 6e-4 m^2 refers to
+_REFERENCE_SIZE = 1.8
 
 
 class StructureLike(Protocol):
@@ -142,25 +144,52 @@ def e_step(
     tau: np.ndarray,
     omega: float,
     n_neighbors: int = 8,
-    radius_sigmas: float = 3.5,
+    radius_sigmas: float | None = 3.5,
+    single: bool = False,
+    *,
+    packed: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> EStats:
-    """Posteriors of Eq. 4 (form of §6.2) per frame, with the Rust GMM kernel
-    (``_core.gmm_estep``, truncated at ``radius_sigmas * sqrt(tau^t)``, rayon inside).
+    """Posteriors of Eq. 4 (form of §6.2) of every frame in one Rust call
+    (``_core.lbs_estep_frames``: parallel over frames, each truncated at
+    ``radius_sigmas * sqrt(tau^t)``; ``None`` = dense; ``single`` = float32 distances and
+    exponentials with float64 sums).
 
     ``n_neighbors`` is only used by the numpy reference :func:`e_step_numpy`.
     Shapes: ``frames`` F arrays ``(N_t, 3)``; ``X (F, M, 3)``; ``tau (F,)`` m^2.
+    ``packed`` = ``(V, offsets)`` from :func:`pack_frames` (skips the concatenation).
     """
     F, M, _ = X.shape
-    P1 = np.zeros((F, M))
-    PX = np.zeros((F, M, 3))
-    Np = np.zeros(F)
-    sxx = np.zeros(F)
-    for t in range(F):
-        p1, _, px, stats = _core.gmm_estep(np.ascontiguousarray(X[t]), frames[t], float(tau[t]),
-                                           float(omega), float(radius_sigmas))
-        P1[t], PX[t] = p1, px
-        Np[t], sxx[t] = stats["n_p"], stats["sum_x2"]
-    return EStats(P1, PX, Np, sxx)
+    V, offsets = packed if packed is not None else pack_frames(frames)
+    P1, PX, Np, sxx = _core.lbs_estep_frames(
+        np.ascontiguousarray(X.reshape(F * M, 3)), V, offsets,
+        np.ascontiguousarray(tau, dtype=np.float64), float(omega),
+        None if radius_sigmas is None else float(radius_sigmas), bool(single))
+    return EStats(P1.reshape(F, M), PX.reshape(F, M, 3), Np, sxx)
+
+
+def pack_frames(frames: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Concatenate ``F`` frames ``(N_t, 3)`` into ``V (sum N_t, 3)`` and ``offsets (F+1,)``."""
+    offsets = np.zeros(len(frames) + 1, dtype=np.int64)
+    offsets[1:] = np.cumsum([len(v) for v in frames])
+    V = np.ascontiguousarray(np.concatenate(frames, axis=0), dtype=np.float64)
+    return V, offsets
+
+
+def subsample_frames(frames: Sequence[np.ndarray], max_points: int) -> list[np.ndarray]:
+    """Deterministic even subsampling: every frame keeps at most ``max_points`` of its points
+    (a fixed stride through the frame's order, so the sensor's spatial coverage is kept).
+    ``max_points <= 0`` keeps everything."""
+    if max_points <= 0:
+        return list(frames)
+    out = []
+    for v in frames:
+        n = len(v)
+        if n <= max_points:
+            out.append(v)
+        else:
+            sel = np.floor(np.arange(max_points) * (n / max_points)).astype(np.int64)
+            out.append(np.ascontiguousarray(v[sel]))
+    return out
 
 
 def e_step_numpy(
@@ -301,6 +330,7 @@ def solve_joints_articulated(
         ``(F, B, 3)`` chain-consistent translations.
     """
     F, B = R.shape[:2]
+    M = Q.shape[0]
     edges = np.flatnonzero(parent >= 0)
     root = int(np.flatnonzero(parent < 0)[0])
     joints = np.array(c_prior, dtype=float, copy=True)
@@ -309,24 +339,26 @@ def solve_joints_articulated(
     idx, w = _dense_to_sparse(W, int(max(1, (W > 0).sum(1).max())))
     Rf = np.ascontiguousarray(R.reshape(F * B, 9))
     s = _core.lbs_skin(Q, idx, w, Rf, np.zeros((F * B, 3)), F).reshape(F, -1, 3)
-    r0 = z - s
-    S0 = a.sum(1)
-    S0s = np.where(S0 > 0, S0, 1.0)
-    d0 = np.einsum("fm,fmi->fi", a, r0)
+    r0 = np.ascontiguousarray((z - s).reshape(F * M, 3))
+    a = np.ascontiguousarray(a, dtype=np.float64)
     if edges.size == 0:
-        T_root = d0 / S0s[:, None]
+        S0 = a.sum(1)
+        S0s = np.where(S0 > 0, S0, 1.0)
+        T_root = np.einsum("fm,fmi->fi", a, r0.reshape(F, M, 3)) / S0s[:, None]
         return joints, np.broadcast_to(T_root[:, None], (F, B, 3)).copy()
-    ws = W @ S[edges].T  # (M, E)
-    aws = a[:, :, None] * ws[None]  # (F, M, E)
-    S1 = aws.sum(1)  # (F, E)
-    S2 = np.einsum("fme,mg->feg", aws, ws, optimize=True)  # (F, E, E)
-    d1 = np.einsum("fme,fmi->fei", aws, r0, optimize=True)  # (F, E, 3)
+    ws = np.ascontiguousarray(W @ S[edges].T)  # (M, E)
+    E = len(edges)
+    # per-frame sums over points (Rust, parallel over frames, sparse in ws)
+    S0, d0, S1, S2, d1 = _core.lbs_joint_normal_sums(ws, a, r0)
+    S2, d1 = S2.reshape(F, E, E), d1.reshape(F, E, 3)
+    S0s = np.where(S0 > 0, S0, 1.0)
     K = S2 - S1[:, :, None] * S1[:, None, :] / S0s[:, None, None]
     A = R[:, parent[edges]] - R[:, edges]  # (F, E, 3, 3)
-    E = len(edges)
-    H = np.einsum("teg,teji,tgjk->eigk", K, A, A, optimize=True).reshape(3 * E, 3 * E)
+    # (F, E, E, 3, 3) products first: plain einsums (no BLAS dispatch for these tiny blocks)
+    AA = np.einsum("teji,tgjk->tegik", A, A)
+    H = np.einsum("teg,tegik->eigk", K, AA).reshape(3 * E, 3 * E)
     rhs_v = d1 - S1[:, :, None] * (d0 / S0s[:, None])[:, None, :]
-    rhs = np.einsum("teji,tej->ei", A, rhs_v, optimize=True)
+    rhs = np.einsum("teji,tej->ei", A, rhs_v)
     lam = prior_weight * S2[:, np.arange(E), np.arange(E)].mean(0)  # (E,)
     lam = np.maximum(lam, 1e-12 * max(1.0, float(np.abs(H).max())))
     H[np.arange(3 * E), np.arange(3 * E)] += np.repeat(lam, 3)
@@ -469,7 +501,12 @@ def learn_joints(
     joints = np.array(structure.joints_rest, dtype=float)
     W = np.zeros((M, B))
     W[np.arange(M), np.asarray(structure.labels)] = 1.0
-    tau = np.full(F, cfg.tau_init)
+    tau0 = cfg.tau_init
+    if cfg.tau_init_relative:
+        size = float(np.linalg.norm(Q.max(0) - Q.min(0)))
+        tau0 = cfg.tau_init * (size / _REFERENCE_SIZE) ** 2 if size > 0 else cfg.tau_init
+    tau = np.full(F, max(tau0, cfg.tau_min))
+    zeta = cfg.zeta * cfg.zeta_scale
     alpha = cfg.alpha_init if cfg.alpha_init is not None else cfg.zeta * M
     articulated = cfg.mode == "articulated"
     c_prior = c_tilde.copy()
@@ -495,6 +532,10 @@ def learn_joints(
     elif cfg.weight_candidates != "all":
         raise ConfigError(f"joints.weight_candidates must be 'all' or 'tree', got {cfg.weight_candidates!r}")
     X = skin_all(W, R, T)
+    # observed points used by the E-step: subsampled per frame (the statistics scale with N_t,
+    # which gmm_density_normalize divides out), packed once for the Rust kernel
+    obs = subsample_frames(frames, cfg.estep_max_points) if cfg.use_gmm else []
+    packed = pack_frames(obs) if cfg.use_gmm else None
     joints0 = joints.copy()
     prev_total = None
     it = 0
@@ -502,23 +543,24 @@ def learn_joints(
         t0 = time.perf_counter()
         # ---- E-step (Eq. 4 form) and the reduced data term
         if cfg.use_gmm:
-            st = e_step(frames, X, tau, cfg.omega, cfg.estep_neighbors, cfg.estep_radius_sigmas)
+            st = e_step(obs, X, tau, cfg.omega, cfg.estep_neighbors, cfg.estep_radius_sigmas,
+                        cfg.estep_single, packed=packed)
             a_g = st.P1 / tau[:, None]
             if cfg.gmm_density_normalize:
                 # one unit of evidence per template point, not per observed point (N_t / M)
-                a_g = a_g * (M / np.array([len(v) for v in frames], float))[:, None]
-            if cfg.gmm_robust > 0 and cfg.zeta > 0:
+                a_g = a_g * (M / np.array([len(v) for v in obs], float))[:, None]
+            if cfg.gmm_robust > 0 and zeta > 0:
                 # down-weight GMM targets that disagree with the registration (occlusion,
                 # mismatched surfaces): Cauchy weight on |PX/P1 - y| in units of sqrt(tau)
                 zg = st.PX / np.maximum(st.P1, 1e-300)[..., None]
                 r2 = np.sum((zg - Y) ** 2, axis=2) / (cfg.gmm_robust ** 2 * tau[:, None])
                 a_g = a_g / (1.0 + r2)
-            a = a_g + cfg.zeta
-            num = a_g[..., None] * (st.PX / np.maximum(st.P1, 1e-300)[..., None]) + cfg.zeta * Y
+            a = a_g + zeta
+            num = a_g[..., None] * (st.PX / np.maximum(st.P1, 1e-300)[..., None]) + zeta * Y
         else:
             st = None
-            a = np.full((F, M), cfg.zeta)
-            num = cfg.zeta * Y
+            a = np.full((F, M), zeta)
+            num = zeta * Y
         safe = np.where(a > 0, a, 1.0)
         z = np.where((a > 0)[..., None], num / safe[..., None], X)
         a = np.ascontiguousarray(a)
@@ -580,10 +622,10 @@ def learn_joints(
         if articulated:
             lam_scale = cfg.eta * cfg.joint_prior * float(np.mean(a.sum(1)))
             e_joint = lam_scale * e_prior
-            total = e_gmm + 0.5 * cfg.zeta * e_reg + 0.5 * e_joint + 0.5 * cfg.gamma * e_small
+            total = e_gmm + 0.5 * zeta * e_reg + 0.5 * e_joint + 0.5 * cfg.gamma * e_small
         else:
             e_joint = cfg.eta * e_prior + e_joint_cons
-            total = e_gmm + 0.5 * cfg.zeta * e_reg + 0.5 * alpha * e_joint + 0.5 * cfg.gamma * e_small
+            total = e_gmm + 0.5 * zeta * e_reg + 0.5 * alpha * e_joint + 0.5 * cfg.gamma * e_small
         energy.append(float(total))
         shift = float(np.max(np.linalg.norm(joints - joints0, axis=1))) if it == 1 else float(
             np.max(np.linalg.norm(joints - diag["_prev_joints"], axis=1)))  # type: ignore[arg-type]
@@ -605,6 +647,12 @@ def learn_joints(
             break
         prev_total = total
     diag.pop("_prev_joints", None)
+    if not cfg.update_weights and cfg.final_weights:
+        # blend weights for the output only (Eq. 22 once, with the last data term)
+        Rf, Tf = _flat_rt(R, T)
+        idx, w, _ = _core.lbs_fit_weights(Q, Rf, Tf, a, zf, F, K, allowed)
+        Wn = _sparse_to_dense(idx, w, B)
+        W = np.where((a.sum(0) > 0)[:, None], Wn, W)
     out_diag: dict[str, Any] = dict(diag)
     out_diag["iterations"] = it
     out_diag["mode"] = cfg.mode

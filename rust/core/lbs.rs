@@ -31,6 +31,154 @@ use crate::core::error::{CoreError, CoreResult};
 use crate::core::qp::{simplex_qp_into, MAX_K};
 use crate::core::rotation::rotation_maximizing_trace;
 
+/// E-step sufficient statistics of every frame (Eq. 4 in the form of §6.2), see [`estep_frames`].
+#[derive(Debug, Clone, Default)]
+pub struct FramesEStep {
+    /// `(F*M)` `P1^t_m = sum_i p^t_mi`.
+    pub p1: Vec<f64>,
+    /// `(F*M*3)` `PX^t_m = sum_i p^t_mi v^t_i`, metres.
+    pub px: Vec<f64>,
+    /// `(F)` `N_p^t = sum_mi p^t_mi`.
+    pub n_p: Vec<f64>,
+    /// `(F)` `sum_i (sum_m p^t_mi) |v^t_i|^2`, m^2.
+    pub sum_x2: Vec<f64>,
+}
+
+/// Truncated E-step of every frame at once: centroids `x (F*M*3)` (the deformed rest points
+/// `x^t_m`), observed points `v` (all frames concatenated, frame t = rows
+/// `offsets[t]..offsets[t+1]`), variances `tau (F)`. Frames run in parallel (rayon), each with
+/// [`crate::core::gmm::estep`] (`cutoff` in units of `sqrt(tau^t)`, `None` = dense).
+#[allow(clippy::too_many_arguments)]
+pub fn estep_frames(
+    x: &[f64],
+    v: &[f64],
+    offsets: &[usize],
+    tau: &[f64],
+    omega: f64,
+    cutoff: Option<f64>,
+    precision: crate::core::gmm::Precision,
+) -> CoreResult<FramesEStep> {
+    let f = tau.len();
+    if f == 0 || offsets.len() != f + 1 || !x.len().is_multiple_of(3 * f) {
+        return Err(CoreError::InvalidInput(format!(
+            "estep_frames: {} variances, {} offsets, {} centroid values",
+            f,
+            offsets.len(),
+            x.len()
+        )));
+    }
+    let m = x.len() / (3 * f);
+    if offsets.windows(2).any(|w| w[1] <= w[0]) || offsets[f] * 3 != v.len() || offsets[0] != 0 {
+        return Err(CoreError::InvalidInput(
+            "estep_frames: offsets must increase strictly from 0 to the number of points".into(),
+        ));
+    }
+    let per: Vec<CoreResult<crate::core::gmm::EStep>> = (0..f)
+        .into_par_iter()
+        .map(|t| {
+            crate::core::gmm::estep(
+                &x[3 * m * t..3 * m * (t + 1)],
+                &v[3 * offsets[t]..3 * offsets[t + 1]],
+                tau[t],
+                omega,
+                cutoff,
+                precision,
+            )
+        })
+        .collect();
+    let mut out = FramesEStep {
+        p1: Vec::with_capacity(f * m),
+        px: Vec::with_capacity(3 * f * m),
+        n_p: Vec::with_capacity(f),
+        sum_x2: Vec::with_capacity(f),
+    };
+    for r in per {
+        let r = r?;
+        out.p1.extend_from_slice(&r.p1);
+        out.px.extend_from_slice(&r.px);
+        out.n_p.push(r.stats.n_p);
+        out.sum_x2.push(r.stats.sum_x2);
+    }
+    Ok(out)
+}
+
+/// One frame's `(S0, d0, S1, S2, d1)` of [`joint_normal_sums`].
+type FrameSums = (f64, [f64; 3], Vec<f64>, Vec<f64>, Vec<f64>);
+
+/// Per-frame sums of the articulated joint solve (docs/joints.md, deviation 1):
+/// `S0 = sum_m a`, `d0 = sum_m a r`, `S1_e = sum_m a ws_me`, `S2_eg = sum_m a ws_me ws_mg`,
+/// `d1_e = sum_m a ws_me r_m` for every frame, with `ws (M*E)` (subtree weight sums),
+/// `a (F*M)`, `r (F*M*3)`. Returns flat `(S0 (F), d0 (F*3), S1 (F*E), S2 (F*E*E), d1 (F*E*3))`.
+/// Parallel over frames; only the non-zero entries of each `ws` row are visited.
+pub fn joint_normal_sums(ws: &[f64], e: usize, a: &[f64], r: &[f64]) -> CoreResult<[Vec<f64>; 5]> {
+    if e == 0 || !ws.len().is_multiple_of(e) {
+        return Err(CoreError::InvalidInput(
+            "joint_normal_sums: ws must be (M, E), E > 0".into(),
+        ));
+    }
+    let m = ws.len() / e;
+    if m == 0 || !a.len().is_multiple_of(m) || r.len() != 3 * a.len() {
+        return Err(CoreError::InvalidInput(format!(
+            "joint_normal_sums: a has {} values, r {}, M = {m}",
+            a.len(),
+            r.len()
+        )));
+    }
+    let f = a.len() / m;
+    // sparse rows of ws (frame independent)
+    let rows: Vec<Vec<(usize, f64)>> = ws
+        .chunks_exact(e)
+        .map(|row| {
+            row.iter()
+                .copied()
+                .enumerate()
+                .filter(|&(_, v)| v != 0.0)
+                .collect()
+        })
+        .collect();
+    let per: Vec<FrameSums> = (0..f)
+        .into_par_iter()
+        .map(|t| {
+            let mut s0 = 0.0;
+            let mut d0 = [0.0; 3];
+            let mut s1 = vec![0.0; e];
+            let mut s2 = vec![0.0; e * e];
+            let mut d1 = vec![0.0; 3 * e];
+            for (k, row) in rows.iter().enumerate() {
+                let am = a[t * m + k];
+                if am == 0.0 {
+                    continue;
+                }
+                let rm = &r[3 * (t * m + k)..3 * (t * m + k) + 3];
+                s0 += am;
+                for i in 0..3 {
+                    d0[i] += am * rm[i];
+                }
+                for &(ei, wi) in row {
+                    let aw = am * wi;
+                    s1[ei] += aw;
+                    for i in 0..3 {
+                        d1[3 * ei + i] += aw * rm[i];
+                    }
+                    for &(gi, wg) in row {
+                        s2[ei * e + gi] += aw * wg;
+                    }
+                }
+            }
+            (s0, d0, s1, s2, d1)
+        })
+        .collect();
+    let mut out: [Vec<f64>; 5] = Default::default();
+    for (s0, d0, s1, s2, d1) in per {
+        out[0].push(s0);
+        out[1].extend_from_slice(&d0);
+        out[2].extend_from_slice(&s1);
+        out[3].extend_from_slice(&s2);
+        out[4].extend_from_slice(&d1);
+    }
+    Ok(out)
+}
+
 /// Sparse LBS weights of the rest points.
 #[derive(Clone, Copy)]
 pub struct SparseWeights<'a> {

@@ -222,6 +222,89 @@ fn lbs_sweep_articulated<'py>(
     rt_out(py, rr, tt)
 }
 
+type FramesOut<'py> = (
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray1<f64>>,
+    Bound<'py, PyArray1<f64>>,
+);
+
+/// Truncated E-step of every frame in one call, parallel over frames (see `_core.pyi`).
+#[pyfunction]
+#[pyo3(signature = (x, v, offsets, tau, omega, cutoff=None, single=false))]
+#[allow(clippy::too_many_arguments)]
+fn lbs_estep_frames<'py>(
+    py: Python<'py>,
+    x: PyReadonlyArray2<'py, f64>,
+    v: PyReadonlyArray2<'py, f64>,
+    offsets: PyReadonlyArray1<'py, i64>,
+    tau: PyReadonlyArray1<'py, f64>,
+    omega: f64,
+    cutoff: Option<f64>,
+    single: bool,
+) -> PyResult<FramesOut<'py>> {
+    let xs = points(py, &x, "x")?;
+    let vs = points(py, &v, "v")?;
+    let taus = flat1(py, &tau, "tau")?;
+    let offs = offsets
+        .c_slice()
+        .map_err(|_| PyValueError::new_err("offsets: array must be contiguous"))?
+        .iter()
+        .map(|&o| {
+            usize::try_from(o).map_err(|_| PyValueError::new_err(format!("offsets: negative {o}")))
+        })
+        .collect::<PyResult<Vec<usize>>>()?;
+    let prec = if single {
+        crate::core::gmm::Precision::Single
+    } else {
+        crate::core::gmm::Precision::Double
+    };
+    let r = py
+        .detach(|| lbs::estep_frames(xs, vs, &offs, taus, omega, cutoff, prec))
+        .map_err(|e| to_pyerr(py, e))?;
+    let f = taus.len();
+    let m = r.p1.len() / f.max(1);
+    Ok((
+        to_array2(py, r.p1, m.max(1))?,
+        to_array2(py, r.px, 3)?,
+        PyArray1::from_vec(py, r.n_p),
+        PyArray1::from_vec(py, r.sum_x2),
+    ))
+}
+
+type SumsOut<'py> = (
+    Bound<'py, PyArray1<f64>>,
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray2<f64>>,
+);
+
+/// Per-frame sums of the articulated joint solve (see `_core.pyi`).
+#[pyfunction]
+fn lbs_joint_normal_sums<'py>(
+    py: Python<'py>,
+    ws: PyReadonlyArray2<'py, f64>,
+    a: PyReadonlyArray2<'py, f64>,
+    r: PyReadonlyArray2<'py, f64>,
+) -> PyResult<SumsOut<'py>> {
+    let e = ws.shape()[1];
+    let m = ws.shape()[0];
+    let wss = flat2(py, &ws, "ws", e)?;
+    let as_ = flat2(py, &a, "a", m)?;
+    let rs = points(py, &r, "r")?;
+    let [s0, d0, s1, s2, d1] = py
+        .detach(|| lbs::joint_normal_sums(wss, e, as_, rs))
+        .map_err(|err| to_pyerr(py, err))?;
+    Ok((
+        PyArray1::from_vec(py, s0),
+        to_array2(py, d0, 3)?,
+        to_array2(py, s1, e)?,
+        to_array2(py, s2, e * e)?,
+        to_array2(py, d1, 3 * e)?,
+    ))
+}
+
 /// Exact minimiser of `0.5 w^T H w - g^T w` on the probability simplex (Eq. 22, k <= 8).
 #[pyfunction]
 fn simplex_qp<'py>(
@@ -242,5 +325,7 @@ pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(lbs_sweep_paper, m)?)?;
     m.add_function(wrap_pyfunction!(lbs_sweep_articulated, m)?)?;
     m.add_function(wrap_pyfunction!(simplex_qp, m)?)?;
+    m.add_function(wrap_pyfunction!(lbs_estep_frames, m)?)?;
+    m.add_function(wrap_pyfunction!(lbs_joint_normal_sums, m)?)?;
     Ok(())
 }
