@@ -150,7 +150,7 @@ def bench_cpd() -> None:
     # CPD beta = 2 (Myronenko and Song) is probreg beta = 4: exp(-d^2 / (2 beta)).
     tf = cpd.registration_cpd(src, s.frames[1], tf_type_name="nonrigid", beta=4.0, lmd=2.0, w=0.01)
     t_cpd = time.perf_counter() - t0
-    moved = np.stack([src, np.asarray(tf.transform(src))])
+    moved = np.stack([src, np.asarray(tf.transformation.transform(src))])
     e_cpd = correspondence_error(src, moved, s.surface[:2])[1].mean()
     print("\nOne frame pair (rest -> frame 1): time and mean correspondence error")
     print(f"{'method':22s} {'s':>7s} {'corr cm':>8s}")

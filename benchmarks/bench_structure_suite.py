@@ -112,7 +112,8 @@ def main(argv: list[str] | None = None) -> int:
     over = {}
     for kv in a.set:
         k, v = kv.split("=", 1)
-        over[k] = type(getattr(StructureConfig(), k))(float(v) if "." in v or "e" in v else v)
+        kind = type(getattr(StructureConfig(), k))
+        over[k] = v if kind is str else kind(float(v) if kind is not bool else v == "true")
     cfg = dataclasses.replace(StructureConfig(), **over)
     if a.timing:
         syn = synthesize("human", n_frames=100, seed=0, camera=_TINY_CAMERA,

@@ -190,3 +190,22 @@ def test_batched_blend_pairs_match_per_pair_closed_form():
         xb = np.einsum("fij,nj->fni", R[:, nb[ib]], q) + T[:, nb[ib], None]
         direct = ((y - (1 - w)[None, :, None] * xa - w[None, :, None] * xb) ** 2).sum()
         assert res == pytest.approx(direct, rel=1e-9)
+
+
+def test_root_joint_at_the_free_end_of_a_one_sided_root_part():
+    """An arm-like root: a rod along x whose only child attaches at x = 0.4; the root joint
+    goes to the free end near x = 0, and a root with children on both sides keeps its
+    centre (the paper's rule)."""
+    from pointrig.structure import root_joint_position
+
+    rng = np.random.default_rng(0)
+    rod = np.c_[rng.uniform(0, 0.4, 500), rng.normal(0, 0.01, (500, 2))]
+    labels = np.zeros(500, dtype=int)
+    joints = np.array([[0.0, 0, 0], [0.4, 0, 0]])
+    got = root_joint_position(rod, labels, 0, joints, np.array([-1, 0]), 0.7)
+    assert abs(got[0] - 0.0) < 0.02 and np.abs(got[1:]).max() < 0.01
+    both = np.array([[0.0, 0, 0], [0.4, 0, 0], [0.0, 0, 0]])
+    got = root_joint_position(rod, labels, 0, both, np.array([-1, 0, 0]), 0.7)
+    np.testing.assert_allclose(got, rod.mean(0))
+    got = root_joint_position(rod, labels, 0, joints, np.array([-1, 0]), 0.0)
+    np.testing.assert_allclose(got, rod.mean(0))

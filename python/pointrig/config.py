@@ -169,6 +169,12 @@ class StructureConfig:
 
     # --- initial joints (Eq. 20) ---
     eta: float = 1.0  # boundary-centroid data weight in E_Joint (Eq. 20), Table 1
+    # root joint (§5.3 puts it at the root cluster's centre): when the root part's children all
+    # attach on one side (mean unit direction to them at least this long), put it at the
+    # part's opposite end (shoulder of an arm, wrist of a hand); 0 = the paper's centre
+    root_end_alignment: float = 0.7
+    root_choice: str = "centroid"  # root bone: "centroid" = centre nearest the rest-pose
+    #   centroid (§5.3), "largest" = the bone with the most points
 
 
 @dataclass(frozen=True)

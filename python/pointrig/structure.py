@@ -455,7 +455,8 @@ def _dislocation(R: np.ndarray, T: np.ndarray, i: int, j: int, c0: np.ndarray,
 def _build_tree(ctx: _Ctx, labels: np.ndarray, B: int, R: np.ndarray, T: np.ndarray,
                 diag: dict[str, Any]) -> tuple[np.ndarray, int, set[tuple[int, int]]]:
     """MST of the touching graph with Eq. 15 weights, bridged by motion + distance; rooted at
-    the bone whose centre is nearest the rest-pose centroid. Returns (parent, root, bridges)."""
+    the bone whose centre is nearest the rest-pose centroid (§5.3), or at the bone with the
+    most points (``root_choice="largest"``). Returns (parent, root, bridges)."""
     import networkx as nx
 
     cfg = ctx.cfg
@@ -490,8 +491,11 @@ def _build_tree(ctx: _Ctx, labels: np.ndarray, B: int, R: np.ndarray, T: np.ndar
             forest.add_edge(i, j, weight=data["weight"])
             bridges.add((min(i, j), max(i, j)))
         diag["bridges"] = diag.get("bridges", 0) + len(bridges)
-    centres = np.array([ctx.Q[labels == b].mean(0) for b in range(B)])
-    root = int(np.argmin(((centres - ctx.centroid) ** 2).sum(1)))
+    if cfg.root_choice == "largest":
+        root = int(np.argmax(np.bincount(labels, minlength=B)))
+    else:
+        centres = np.array([ctx.Q[labels == b].mean(0) for b in range(B)])
+        root = int(np.argmin(((centres - ctx.centroid) ** 2).sum(1)))
     parent = np.full(B, -1, np.int64)
     for u, v in nx.bfs_edges(forest, root):
         parent[v] = u
@@ -731,6 +735,8 @@ def extract_structure(rest_points: np.ndarray, points: np.ndarray,
         c_tilde = _boundary_centroids(ctx, labels, parent)
         joints = solve_joint_positions(R, T, parent, c_tilde, cfg.eta)
 
+    joints = joints.copy()
+    joints[root] = root_joint_position(Q, labels, root, joints, parent, cfg.root_end_alignment)
     res_own = _core.cluster_residuals(Q, Y, R, T, np.ascontiguousarray(labels[:, None]))[:, 0]
     rms = [float(np.sqrt(res_own[labels == b].mean() / ctx.F)) for b in range(B)]
     diag.update({
@@ -742,6 +748,33 @@ def extract_structure(rest_points: np.ndarray, points: np.ndarray,
              diag["n_after_clustering"], B, diag["time_total_s"])
     return StructureResult(labels=labels, bone_parent=parent, R=R, T=T, joints_rest=joints,
                            c_tilde=c_tilde, root=root, rest_points=Q, diagnostics=diag)
+
+
+def root_joint_position(rest_points: np.ndarray, labels: np.ndarray, root: int,
+                        joints: np.ndarray, bone_parent: np.ndarray,
+                        min_alignment: float) -> np.ndarray:
+    """Rest position ``(3,)`` (metres) of the root joint.
+
+    The paper puts the root joint at the root cluster's centre (§5.3). When all of the root
+    part's children attach on one side of it (the mean of the unit vectors from its centre to
+    its child joints has length >= ``min_alignment``), as for an arm hanging from the shoulder,
+    a hand from the wrist or a robot arm from its base, the root joint is put at the part's
+    opposite end instead: the centre moved along that direction to the 3rd percentile of the
+    part's extent. Otherwise (children on several sides, as a pelvis or torso) the centre is
+    kept. ``min_alignment <= 0`` always keeps the paper's centre.
+    """
+    pts = rest_points[labels == root]
+    centre = pts.mean(axis=0)
+    kids = np.flatnonzero(np.asarray(bone_parent) == root)
+    if min_alignment <= 0 or len(kids) == 0 or len(pts) < 3:
+        return centre
+    dirs = joints[kids] - centre
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True) + 1e-12
+    mean = dirs.mean(axis=0)
+    if np.linalg.norm(mean) < min_alignment:
+        return centre
+    axis = mean / np.linalg.norm(mean)
+    return centre + axis * float(np.quantile((pts - centre) @ axis, 0.03))
 
 
 def to_skeleton(result: StructureResult) -> Skeleton:
