@@ -248,6 +248,8 @@ def _frame_kwargs(config: RegistrationConfig) -> dict[str, Any]:
         damping=config.gn_damping,
         cg_tol=config.cg_tolerance,
         cg_max=config.cg_max_iterations,
+        subsample=config.subsample,
+        motion_tol=config.motion_tol,
     )
 
 

@@ -24,7 +24,8 @@ use nalgebra::{Matrix3, Matrix6, Rotation3, Vector3, Vector6};
 use rayon::prelude::*;
 
 use crate::core::error::{CoreError, CoreResult};
-use crate::core::gmm::{estep, Precision};
+use crate::core::gmm::{estep, estep_weighted, Precision};
+use crate::core::neighbors::voxel_downsample;
 use crate::core::rotation::{kabsch, rotation_maximizing_trace};
 
 /// Node transforms `{R_j, T_j}` (Eq. 2).
@@ -594,6 +595,13 @@ pub struct FrameParams {
     pub damping: f64,
     pub cg_tol: f64,
     pub cg_max: usize,
+    /// Coarse-data E-step: while the voxel grid of side `subsample * sigma` holds fewer than
+    /// half as many cells as data points, the E-step runs on the voxel centroids weighted by
+    /// their point counts ([`voxel_downsample`], [`estep_weighted`]); 0 = always full data.
+    pub subsample: f64,
+    /// Early stop (after the coarse phase): the RMS displacement of the deformed template in
+    /// one iteration falls below `motion_tol * sigma`; 0 = off.
+    pub motion_tol: f64,
 }
 
 /// Result of [`register_frame`].
@@ -648,9 +656,21 @@ pub fn register_frame(
         } else {
             0
         };
+    let mut full_data = !(p.subsample > 0.0);
+    let mut y_cur = g.deform(&st);
     for it in 0..p.max_iter {
-        let y = flat(&g.deform(&st));
-        let es = estep(&y, x, s2, p.omega, p.cutoff, p.precision)?;
+        let y = flat(&y_cur);
+        let es = if full_data {
+            estep(&y, x, s2, p.omega, p.cutoff, p.precision)?
+        } else {
+            let (xs, ws) = voxel_downsample(x, p.subsample * s2.sqrt());
+            if 2 * ws.len() >= n {
+                full_data = true;
+                estep(&y, x, s2, p.omega, p.cutoff, p.precision)?
+            } else {
+                estep_weighted(&y, &xs, Some(&ws), s2, p.omega, p.cutoff, p.precision)?
+            }
+        };
         n_p = es.stats.n_p;
         if !(n_p > 1e-9 * n as f64) {
             break;
@@ -697,15 +717,34 @@ pub fn register_frame(
             + 0.5 * p.beta_small * Graph::e_small(&st, &pre);
         iterations = it + 1;
         history.push((s2_new, energy));
-        let converged = it >= p.rigid_iters.max(k_coarse)
-            && e_prev.is_some_and(|e0| (energy - e0).abs() <= p.tol * energy.abs().max(1e-300));
+        let motion = (yn
+            .iter()
+            .zip(&y_cur)
+            .map(|(a, b)| (a - b).norm_squared())
+            .sum::<f64>()
+            / yn.len().max(1) as f64)
+            .sqrt();
+        y_cur = yn;
+        let settled = it >= p.rigid_iters.max(k_coarse)
+            && ((p.motion_tol > 0.0 && motion <= p.motion_tol * s2_new.sqrt())
+                || e_prev
+                    .is_some_and(|e0| (energy - e0).abs() <= p.tol * energy.abs().max(1e-300)));
+        // Converged on the voxel centroids: finish on the full data.
+        let converged = settled && full_data;
+        if settled {
+            full_data = true;
+        }
+        // The last iteration always sees the full data.
+        if it + 2 == p.max_iter {
+            full_data = true;
+        }
         s2 = s2_new;
         e_prev = Some(energy);
         if converged {
             break;
         }
     }
-    let points = g.deform(&st);
+    let points = y_cur;
     Ok(FrameResult {
         state: st,
         points,
