@@ -88,6 +88,7 @@ class RegistrationConfig:
     cg_max_iterations: int = 300
     subsample: float = 1.0  # coarse E-step on voxel centroids of side subsample * sigma (count-weighted) while that halves N (0 = full data)
     motion_tol: float = 0.1  # early stop: RMS template motion in one iteration < motion_tol * sigma (0 = off)
+    density_voxel: float = 0.0  # fine-stage data = unit-weight voxel centroids of side density_voxel x rest-point spacing (uniform density; 0 = raw points)
     lost_fraction: float = 0.05  # N_p / N below this = tracking lost -> retry coarse
     sor_neighbors: int = 20  # rest surface: statistical outlier removal, k
     sor_std_ratio: float = 2.0  # rest surface: keep mean k-NN distance < mean + ratio * std

@@ -300,6 +300,9 @@ def register_sequence(
     j = len(graph.nodes)
     m = len(rest)
     kw = _frame_kwargs(config)
+    if config.density_voxel > 0:
+        spacing = float(np.mean(cKDTree(rest).query(rest, k=2)[0][:, 1]))
+        kw["voxel_min"] = config.density_voxel * spacing
 
     points = np.zeros((f, m, 3))
     sigma2 = np.zeros(f)

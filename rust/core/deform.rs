@@ -602,6 +602,11 @@ pub struct FrameParams {
     /// Early stop (after the coarse phase): the RMS displacement of the deformed template in
     /// one iteration falls below `motion_tol * sigma`; 0 = off.
     pub motion_tol: f64,
+    /// Density-normalised data (fine stage): with `voxel_min > 0` the "full" data is the set
+    /// of voxel centroids of side `voxel_min` (metres) each weighted 1, so the GMM sees a
+    /// uniform surface density whatever the viewing angle (foreshortening would otherwise
+    /// pull template points towards the surfaces facing the camera). 0 = raw points.
+    pub voxel_min: f64,
 }
 
 /// Result of [`register_frame`].
@@ -658,21 +663,32 @@ pub fn register_frame(
         };
     let mut full_data = !(p.subsample > 0.0);
     let mut y_cur = g.deform(&st);
+    let fine: Option<(Vec<f64>, Vec<f64>)> = (p.voxel_min > 0.0).then(|| {
+        let (c, w) = voxel_downsample(x, p.voxel_min);
+        let ones = vec![1.0; w.len()];
+        (c, ones)
+    });
+    // Data mass of the fine stage (N, or the number of unit-weight voxels).
+    let n_full = fine.as_ref().map_or(n, |f| f.1.len());
+    let full_estep = |y: &[f64], s2: f64| match &fine {
+        None => estep(y, x, s2, p.omega, p.cutoff, p.precision),
+        Some((c, w)) => estep_weighted(y, c, Some(w), s2, p.omega, p.cutoff, p.precision),
+    };
     for it in 0..p.max_iter {
         let y = flat(&y_cur);
         let es = if full_data {
-            estep(&y, x, s2, p.omega, p.cutoff, p.precision)?
+            full_estep(&y, s2)?
         } else {
             let (xs, ws) = voxel_downsample(x, p.subsample * s2.sqrt());
-            if 2 * ws.len() >= n {
+            if 2 * ws.len() >= n_full {
                 full_data = true;
-                estep(&y, x, s2, p.omega, p.cutoff, p.precision)?
+                full_estep(&y, s2)?
             } else {
                 estep_weighted(&y, &xs, Some(&ws), s2, p.omega, p.cutoff, p.precision)?
             }
         };
         n_p = es.stats.n_p;
-        if !(n_p > 1e-9 * n as f64) {
+        if !(n_p > 1e-9 * n_full as f64) {
             break;
         }
         let d = DataTerm {
@@ -752,7 +768,7 @@ pub fn register_frame(
         iterations,
         energy,
         n_p,
-        n_data: n,
+        n_data: n_full,
         history,
     })
 }

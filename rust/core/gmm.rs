@@ -340,6 +340,7 @@ fn dense_chunk<T: Real>(
 
 /// Truncated E-step: only pairs closer than `radius` (grid over the template, sorted order).
 #[inline(always)]
+#[allow(clippy::too_many_arguments)]
 fn truncated_chunk<T: Real>(
     tpl: &Template<T>,
     grid: &Grid,
@@ -420,6 +421,7 @@ unsafe fn dense_chunk_avx2<T: Real>(
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
+#[allow(clippy::too_many_arguments)]
 unsafe fn truncated_chunk_avx2<T: Real>(
     tpl: &Template<T>,
     grid: &Grid,
@@ -444,6 +446,7 @@ fn has_avx2_fma() -> bool {
     }
 }
 
+#[allow(clippy::too_many_arguments)]
 fn truncated_dispatch<T: Real>(
     tpl: &Template<T>,
     grid: &Grid,
@@ -661,7 +664,7 @@ pub fn estep_weighted(
                 "data weights must be N finite non-negative values".into(),
             ));
         }
-        if !(w.iter().sum::<f64>() > 0.0) {
+        if w.iter().sum::<f64>() <= 0.0 {
             return Err(CoreError::InvalidInput("data weights sum to zero".into()));
         }
     }
@@ -754,5 +757,36 @@ mod tests {
         assert_eq!(r1.p1, r3.p1);
         assert_eq!(r1.px, r3.px);
         assert_eq!(r1.stats, r3.stats);
+    }
+
+    #[test]
+    fn integer_weights_equal_duplicated_points() {
+        let y = cloud(200, 0.4);
+        let x = cloud(500, 3.1);
+        let w: Vec<f64> = (0..500).map(|i| (i % 3 + 1) as f64).collect();
+        let dup: Vec<f64> = x
+            .chunks_exact(3)
+            .zip(&w)
+            .flat_map(|(p, &k)| std::iter::repeat_n([p[0], p[1], p[2]], k as usize).flatten())
+            .collect();
+        for cutoff in [None, Some(4.0)] {
+            let a =
+                estep_weighted(&y, &x, Some(&w), 0.004, 0.1, cutoff, Precision::Double).unwrap();
+            let b = estep(&y, &dup, 0.004, 0.1, cutoff, Precision::Double).unwrap();
+            for k in 0..200 {
+                assert!((a.p1[k] - b.p1[k]).abs() < 1e-10);
+                for c in 0..3 {
+                    assert!((a.px[3 * k + c] - b.px[3 * k + c]).abs() < 1e-10);
+                }
+            }
+            let rel = |u: f64, v: f64| (u - v).abs() <= 1e-10 * v.abs().max(1.0);
+            assert!(rel(a.stats.n_p, b.stats.n_p));
+            assert!(rel(a.stats.sum_sq, b.stats.sum_sq));
+            assert!(rel(a.stats.sum_x2, b.stats.sum_x2));
+            assert!(rel(a.stats.nll, b.stats.nll));
+        }
+        assert!(
+            estep_weighted(&y, &x, Some(&w[..10]), 0.004, 0.1, None, Precision::Double).is_err()
+        );
     }
 }
