@@ -179,6 +179,7 @@ class DeformGraph:
         beta_small: float, sigma2_min: float, anneal: float, anneal_floor: float,
         max_iter: int, tol: float, cutoff: float | None, single: bool, rigid_iters: int,
         solver: str, damping: float, cg_tol: float, cg_max: int,
+        subsample: float = 0.0, motion_tol: float = 0.0, voxel_min: float = 0.0,
     ) -> dict:
         """Algorithm 1 on one frame (see docs/registration.md): dict with ``R``, ``T``,
         ``points (M, 3)``, ``sigma2``, ``iterations``, ``energy``, ``n_p``, ``n_data``,

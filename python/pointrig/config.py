@@ -81,11 +81,14 @@ class RegistrationConfig:
     sigma2_anneal: float = 0.5  # coarse-to-fine: sigma^2 capped at anneal * previous until sigma2_init (1 = off)
     rigid_iterations: int = 2  # leading EM iterations that do a global weighted-Kabsch step
     predict_velocity: float = 1.0  # constant-velocity prediction of node transforms (0 = none)
-    cutoff: float = 5.0  # truncated E-step: pairs beyond cutoff * sigma ignored (0 = dense)
+    cutoff: float = 3.5  # truncated E-step: pairs beyond cutoff * sigma ignored (0 = dense); was 5.0
     single_precision: bool = True  # float32 E-step inner loops (float64 reductions)
     gn_damping: float = 1e-4  # Levenberg damping of the Gauss-Newton step (x diag)
     cg_tolerance: float = 1e-6  # relative residual of the block-Jacobi PCG solve
     cg_max_iterations: int = 300
+    subsample: float = 1.0  # coarse E-step on voxel centroids of side subsample * sigma (count-weighted) while that halves N (0 = full data)
+    motion_tol: float = 0.1  # early stop: RMS template motion in one iteration < motion_tol * sigma (0 = off)
+    density_voxel: float = 0.0  # fine-stage data = unit-weight voxel centroids of side density_voxel x rest-point spacing (uniform density; 0 = raw points)
     lost_fraction: float = 0.05  # N_p / N below this = tracking lost -> retry coarse
     sor_neighbors: int = 20  # rest surface: statistical outlier removal, k
     sor_std_ratio: float = 2.0  # rest surface: keep mean k-NN distance < mean + ratio * std

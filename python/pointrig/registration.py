@@ -248,6 +248,8 @@ def _frame_kwargs(config: RegistrationConfig) -> dict[str, Any]:
         damping=config.gn_damping,
         cg_tol=config.cg_tolerance,
         cg_max=config.cg_max_iterations,
+        subsample=config.subsample,
+        motion_tol=config.motion_tol,
     )
 
 
@@ -298,6 +300,9 @@ def register_sequence(
     j = len(graph.nodes)
     m = len(rest)
     kw = _frame_kwargs(config)
+    if config.density_voxel > 0:
+        spacing = float(np.mean(cKDTree(rest).query(rest, k=2)[0][:, 1]))
+        kw["voxel_min"] = config.density_voxel * spacing
 
     points = np.zeros((f, m, 3))
     sigma2 = np.zeros(f)

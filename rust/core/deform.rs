@@ -24,7 +24,8 @@ use nalgebra::{Matrix3, Matrix6, Rotation3, Vector3, Vector6};
 use rayon::prelude::*;
 
 use crate::core::error::{CoreError, CoreResult};
-use crate::core::gmm::{estep, Precision};
+use crate::core::gmm::{estep, estep_weighted, Precision};
+use crate::core::neighbors::voxel_downsample;
 use crate::core::rotation::{kabsch, rotation_maximizing_trace};
 
 /// Node transforms `{R_j, T_j}` (Eq. 2).
@@ -594,6 +595,18 @@ pub struct FrameParams {
     pub damping: f64,
     pub cg_tol: f64,
     pub cg_max: usize,
+    /// Coarse-data E-step: while the voxel grid of side `subsample * sigma` holds fewer than
+    /// half as many cells as data points, the E-step runs on the voxel centroids weighted by
+    /// their point counts ([`voxel_downsample`], [`estep_weighted`]); 0 = always full data.
+    pub subsample: f64,
+    /// Early stop (after the coarse phase): the RMS displacement of the deformed template in
+    /// one iteration falls below `motion_tol * sigma`; 0 = off.
+    pub motion_tol: f64,
+    /// Density-normalised data (fine stage): with `voxel_min > 0` the "full" data is the set
+    /// of voxel centroids of side `voxel_min` (metres) each weighted 1, so the GMM sees a
+    /// uniform surface density whatever the viewing angle (foreshortening would otherwise
+    /// pull template points towards the surfaces facing the camera). 0 = raw points.
+    pub voxel_min: f64,
 }
 
 /// Result of [`register_frame`].
@@ -648,11 +661,34 @@ pub fn register_frame(
         } else {
             0
         };
+    let mut full_data = !(p.subsample > 0.0);
+    let mut y_cur = g.deform(&st);
+    let fine: Option<(Vec<f64>, Vec<f64>)> = (p.voxel_min > 0.0).then(|| {
+        let (c, w) = voxel_downsample(x, p.voxel_min);
+        let ones = vec![1.0; w.len()];
+        (c, ones)
+    });
+    // Data mass of the fine stage (N, or the number of unit-weight voxels).
+    let n_full = fine.as_ref().map_or(n, |f| f.1.len());
+    let full_estep = |y: &[f64], s2: f64| match &fine {
+        None => estep(y, x, s2, p.omega, p.cutoff, p.precision),
+        Some((c, w)) => estep_weighted(y, c, Some(w), s2, p.omega, p.cutoff, p.precision),
+    };
     for it in 0..p.max_iter {
-        let y = flat(&g.deform(&st));
-        let es = estep(&y, x, s2, p.omega, p.cutoff, p.precision)?;
+        let y = flat(&y_cur);
+        let es = if full_data {
+            full_estep(&y, s2)?
+        } else {
+            let (xs, ws) = voxel_downsample(x, p.subsample * s2.sqrt());
+            if 2 * ws.len() >= n_full {
+                full_data = true;
+                full_estep(&y, s2)?
+            } else {
+                estep_weighted(&y, &xs, Some(&ws), s2, p.omega, p.cutoff, p.precision)?
+            }
+        };
         n_p = es.stats.n_p;
-        if !(n_p > 1e-9 * n as f64) {
+        if !(n_p > 1e-9 * n_full as f64) {
             break;
         }
         let d = DataTerm {
@@ -697,15 +733,34 @@ pub fn register_frame(
             + 0.5 * p.beta_small * Graph::e_small(&st, &pre);
         iterations = it + 1;
         history.push((s2_new, energy));
-        let converged = it >= p.rigid_iters.max(k_coarse)
-            && e_prev.is_some_and(|e0| (energy - e0).abs() <= p.tol * energy.abs().max(1e-300));
+        let motion = (yn
+            .iter()
+            .zip(&y_cur)
+            .map(|(a, b)| (a - b).norm_squared())
+            .sum::<f64>()
+            / yn.len().max(1) as f64)
+            .sqrt();
+        y_cur = yn;
+        let settled = it >= p.rigid_iters.max(k_coarse)
+            && ((p.motion_tol > 0.0 && motion <= p.motion_tol * s2_new.sqrt())
+                || e_prev
+                    .is_some_and(|e0| (energy - e0).abs() <= p.tol * energy.abs().max(1e-300)));
+        // Converged on the voxel centroids: finish on the full data.
+        let converged = settled && full_data;
+        if settled {
+            full_data = true;
+        }
+        // The last iteration always sees the full data.
+        if it + 2 == p.max_iter {
+            full_data = true;
+        }
         s2 = s2_new;
         e_prev = Some(energy);
         if converged {
             break;
         }
     }
-    let points = g.deform(&st);
+    let points = y_cur;
     Ok(FrameResult {
         state: st,
         points,
@@ -713,7 +768,7 @@ pub fn register_frame(
         iterations,
         energy,
         n_p,
-        n_data: n,
+        n_data: n_full,
         history,
     })
 }

@@ -271,7 +271,13 @@ fn exp_row<T: Real>(
 
 /// Dense E-step over data points `xs` (centred, flat f64) with global index offset.
 #[inline(always)]
-fn dense_chunk<T: Real>(tpl: &Template<T>, xs: &[f64], inv2s: T, c0: f64) -> Partial<T> {
+fn dense_chunk<T: Real>(
+    tpl: &Template<T>,
+    xs: &[f64],
+    ws: Option<&[f64]>,
+    inv2s: T,
+    c0: f64,
+) -> Partial<T> {
     let m = tpl.yx.len();
     let n = xs.len() / 3;
     let mut part = Partial::<T>::new(m, n);
@@ -291,11 +297,12 @@ fn dense_chunk<T: Real>(tpl: &Template<T>, xs: &[f64], inv2s: T, c0: f64) -> Par
             ];
             let (s, w) = exp_row(tpl, q[b], inv2s, &mut e[b * m..(b + 1) * m], &mut d2);
             let den = s + c0;
+            let wi = ws.map_or(1.0, |v| v[i]);
             if den > 0.0 {
-                inv[b] = T::from_f64(1.0 / den);
-                part.pt1[i] = s / den;
-                part.sum_sq += w / den;
-                part.log_den += den.ln();
+                inv[b] = T::from_f64(wi / den);
+                part.pt1[i] = wi * s / den;
+                part.sum_sq += wi * w / den;
+                part.log_den += wi * den.ln();
             } else {
                 part.log_den += f64::NEG_INFINITY;
             }
@@ -333,10 +340,12 @@ fn dense_chunk<T: Real>(tpl: &Template<T>, xs: &[f64], inv2s: T, c0: f64) -> Par
 
 /// Truncated E-step: only pairs closer than `radius` (grid over the template, sorted order).
 #[inline(always)]
+#[allow(clippy::too_many_arguments)]
 fn truncated_chunk<T: Real>(
     tpl: &Template<T>,
     grid: &Grid,
     xs: &[f64],
+    ws: Option<&[f64]>,
     inv2s: T,
     c0: f64,
     radius: f64,
@@ -373,13 +382,14 @@ fn truncated_chunk<T: Real>(
         }
         let den = s + c0;
         let dropped = (m - kept_k.len()) as f64;
+        let wi = ws.map_or(1.0, |v| v[i]);
         if den > 0.0 {
             let inv = 1.0 / den;
-            part.pt1[i] = s * inv;
-            part.sum_sq += w * inv;
-            part.log_den += den.ln();
-            part.bound += (2.0 * dropped * eps * inv).min(2.0);
-            let invt = T::from_f64(inv);
+            part.pt1[i] = wi * s * inv;
+            part.sum_sq += wi * w * inv;
+            part.log_den += wi * den.ln();
+            part.bound += wi * (2.0 * dropped * eps * inv).min(2.0);
+            let invt = T::from_f64(wi * inv);
             for (&k, &v) in kept_k.iter().zip(kept_e.iter()) {
                 let k = k as usize;
                 let a = v * invt;
@@ -390,7 +400,7 @@ fn truncated_chunk<T: Real>(
             }
         } else {
             part.log_den += f64::NEG_INFINITY;
-            part.bound += if dropped > 0.0 { 2.0 } else { 0.0 };
+            part.bound += if dropped > 0.0 { 2.0 * wi } else { 0.0 };
         }
         part.n_pairs += kept_k.len() as u64;
     }
@@ -402,24 +412,27 @@ fn truncated_chunk<T: Real>(
 unsafe fn dense_chunk_avx2<T: Real>(
     tpl: &Template<T>,
     xs: &[f64],
+    ws: Option<&[f64]>,
     inv2s: T,
     c0: f64,
 ) -> Partial<T> {
-    dense_chunk(tpl, xs, inv2s, c0)
+    dense_chunk(tpl, xs, ws, inv2s, c0)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
+#[allow(clippy::too_many_arguments)]
 unsafe fn truncated_chunk_avx2<T: Real>(
     tpl: &Template<T>,
     grid: &Grid,
     xs: &[f64],
+    ws: Option<&[f64]>,
     inv2s: T,
     c0: f64,
     radius: f64,
     eps: f64,
 ) -> Partial<T> {
-    truncated_chunk(tpl, grid, xs, inv2s, c0, radius, eps)
+    truncated_chunk(tpl, grid, xs, ws, inv2s, c0, radius, eps)
 }
 
 fn has_avx2_fma() -> bool {
@@ -433,10 +446,12 @@ fn has_avx2_fma() -> bool {
     }
 }
 
+#[allow(clippy::too_many_arguments)]
 fn truncated_dispatch<T: Real>(
     tpl: &Template<T>,
     grid: &Grid,
     xs: &[f64],
+    ws: Option<&[f64]>,
     inv2s: T,
     c0: f64,
     radius: f64,
@@ -446,21 +461,27 @@ fn truncated_dispatch<T: Real>(
     {
         if has_avx2_fma() {
             // SAFETY: the CPU supports the enabled features (checked just above).
-            return unsafe { truncated_chunk_avx2(tpl, grid, xs, inv2s, c0, radius, eps) };
+            return unsafe { truncated_chunk_avx2(tpl, grid, xs, ws, inv2s, c0, radius, eps) };
         }
     }
-    truncated_chunk(tpl, grid, xs, inv2s, c0, radius, eps)
+    truncated_chunk(tpl, grid, xs, ws, inv2s, c0, radius, eps)
 }
 
-fn dense_dispatch<T: Real>(tpl: &Template<T>, xs: &[f64], inv2s: T, c0: f64) -> Partial<T> {
+fn dense_dispatch<T: Real>(
+    tpl: &Template<T>,
+    xs: &[f64],
+    ws: Option<&[f64]>,
+    inv2s: T,
+    c0: f64,
+) -> Partial<T> {
     #[cfg(target_arch = "x86_64")]
     {
         if has_avx2_fma() {
             // SAFETY: the CPU supports the enabled features (checked just above).
-            return unsafe { dense_chunk_avx2(tpl, xs, inv2s, c0) };
+            return unsafe { dense_chunk_avx2(tpl, xs, ws, inv2s, c0) };
         }
     }
-    dense_chunk(tpl, xs, inv2s, c0)
+    dense_chunk(tpl, xs, ws, inv2s, c0)
 }
 
 /// Data points per chunk: depends on N only (determinism across thread counts).
@@ -499,9 +520,18 @@ fn validate(y: &[f64], x: &[f64], sigma2: f64, omega: f64, cutoff: Option<f64>) 
     Ok(())
 }
 
-fn run<T: Real>(y: &[f64], x: &[f64], sigma2: f64, omega: f64, cutoff: Option<f64>) -> EStep {
+fn run<T: Real>(
+    y: &[f64],
+    x: &[f64],
+    wx: Option<&[f64]>,
+    sigma2: f64,
+    omega: f64,
+    cutoff: Option<f64>,
+) -> EStep {
     let m = y.len() / 3;
     let n = x.len() / 3;
+    // Effective number of data points (the outlier term of Eq. 1 counts the represented mass).
+    let n_eff = wx.map_or(n as f64, |w| w.iter().sum::<f64>());
     // Centre both sets on the template mean (better conditioned single precision).
     let mut c = [0.0f64; 3];
     for p in y.chunks_exact(3) {
@@ -522,7 +552,7 @@ fn run<T: Real>(y: &[f64], x: &[f64], sigma2: f64, omega: f64, cutoff: Option<f6
         .collect();
 
     let two_pi_s2 = 2.0 * std::f64::consts::PI * sigma2;
-    let c0 = two_pi_s2.powf(1.5) * omega * m as f64 / ((1.0 - omega) * n as f64);
+    let c0 = two_pi_s2.powf(1.5) * omega * m as f64 / ((1.0 - omega) * n_eff);
     let inv2s = T::from_f64(1.0 / (2.0 * sigma2));
 
     // With a cutoff so wide that a 3x3x3 cell block holds a large share of the template
@@ -547,9 +577,15 @@ fn run<T: Real>(y: &[f64], x: &[f64], sigma2: f64, omega: f64, cutoff: Option<f6
     let cl = chunk_len(n);
     let parts: Vec<Partial<T>> = xc
         .par_chunks(3 * cl)
-        .map(|xs| match &grid {
-            None => dense_dispatch(&tpl, xs, inv2s, c0),
-            Some((g, radius, eps)) => truncated_dispatch(&tpl, g, xs, inv2s, c0, *radius, *eps),
+        .enumerate()
+        .map(|(ci, xs)| {
+            let ws = wx.map(|w| &w[ci * cl..ci * cl + xs.len() / 3]);
+            match &grid {
+                None => dense_dispatch(&tpl, xs, ws, inv2s, c0),
+                Some((g, radius, eps)) => {
+                    truncated_dispatch(&tpl, g, xs, ws, inv2s, c0, *radius, *eps)
+                }
+            }
         })
         .collect();
 
@@ -587,7 +623,7 @@ fn run<T: Real>(y: &[f64], x: &[f64], sigma2: f64, omega: f64, cutoff: Option<f6
         .map(|(w, p)| w * (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]))
         .sum();
     let log_norm = ((1.0 - omega) / (m as f64 * two_pi_s2.powf(1.5))).ln();
-    stats.nll = -log_den - n as f64 * log_norm;
+    stats.nll = -log_den - n_eff * log_norm;
     stats.e_gmm = stats.sum_sq / (2.0 * sigma2) + 1.5 * stats.n_p * sigma2.ln();
     EStep { p1, pt1, px, stats }
 }
@@ -605,10 +641,36 @@ pub fn estep(
     cutoff: Option<f64>,
     precision: Precision,
 ) -> CoreResult<EStep> {
+    estep_weighted(y, x, None, sigma2, omega, cutoff, precision)
+}
+
+/// [`estep`] with a non-negative weight (multiplicity) per data point: point `i` counts as
+/// `w_i` coincident points (e.g. a voxel centroid standing for `w_i` observations), so
+/// `Pt1_i`, `P1`, `PX`, `N_p`, the Eq. 12 sum and the log-likelihood are weighted and the
+/// outlier constant `c0` uses `N = sum_i w_i`. `None` = all ones (bitwise equal to [`estep`]).
+pub fn estep_weighted(
+    y: &[f64],
+    x: &[f64],
+    wx: Option<&[f64]>,
+    sigma2: f64,
+    omega: f64,
+    cutoff: Option<f64>,
+    precision: Precision,
+) -> CoreResult<EStep> {
     validate(y, x, sigma2, omega, cutoff)?;
+    if let Some(w) = wx {
+        if w.len() * 3 != x.len() || !w.iter().all(|v| v.is_finite() && *v >= 0.0) {
+            return Err(CoreError::InvalidInput(
+                "data weights must be N finite non-negative values".into(),
+            ));
+        }
+        if w.iter().sum::<f64>() <= 0.0 {
+            return Err(CoreError::InvalidInput("data weights sum to zero".into()));
+        }
+    }
     Ok(match precision {
-        Precision::Double => run::<f64>(y, x, sigma2, omega, cutoff),
-        Precision::Single => run::<f32>(y, x, sigma2, omega, cutoff),
+        Precision::Double => run::<f64>(y, x, wx, sigma2, omega, cutoff),
+        Precision::Single => run::<f32>(y, x, wx, sigma2, omega, cutoff),
     })
 }
 
@@ -695,5 +757,36 @@ mod tests {
         assert_eq!(r1.p1, r3.p1);
         assert_eq!(r1.px, r3.px);
         assert_eq!(r1.stats, r3.stats);
+    }
+
+    #[test]
+    fn integer_weights_equal_duplicated_points() {
+        let y = cloud(200, 0.4);
+        let x = cloud(500, 3.1);
+        let w: Vec<f64> = (0..500).map(|i| (i % 3 + 1) as f64).collect();
+        let dup: Vec<f64> = x
+            .chunks_exact(3)
+            .zip(&w)
+            .flat_map(|(p, &k)| std::iter::repeat_n([p[0], p[1], p[2]], k as usize).flatten())
+            .collect();
+        for cutoff in [None, Some(4.0)] {
+            let a =
+                estep_weighted(&y, &x, Some(&w), 0.004, 0.1, cutoff, Precision::Double).unwrap();
+            let b = estep(&y, &dup, 0.004, 0.1, cutoff, Precision::Double).unwrap();
+            for k in 0..200 {
+                assert!((a.p1[k] - b.p1[k]).abs() < 1e-10);
+                for c in 0..3 {
+                    assert!((a.px[3 * k + c] - b.px[3 * k + c]).abs() < 1e-10);
+                }
+            }
+            let rel = |u: f64, v: f64| (u - v).abs() <= 1e-10 * v.abs().max(1.0);
+            assert!(rel(a.stats.n_p, b.stats.n_p));
+            assert!(rel(a.stats.sum_sq, b.stats.sum_sq));
+            assert!(rel(a.stats.sum_x2, b.stats.sum_x2));
+            assert!(rel(a.stats.nll, b.stats.nll));
+        }
+        assert!(
+            estep_weighted(&y, &x, Some(&w[..10]), 0.004, 0.1, None, Precision::Double).is_err()
+        );
     }
 }

@@ -153,6 +153,60 @@ impl Grid {
     }
 }
 
+/// Voxel-grid subsampling: the centroid of the points of each occupied cubic cell of side
+/// `h` and the number of points it stands for, `(centroids (K, 3) flat, counts (K,))`.
+///
+/// Cells are keyed relative to the bounding-box minimum and emitted in key order, so the
+/// result is deterministic. `h` must be positive and finite (otherwise the input is returned
+/// with unit counts).
+pub fn voxel_downsample(points: &[f64], h: f64) -> (Vec<f64>, Vec<f64>) {
+    let n = points.len() / 3;
+    if n == 0 || !(h.is_finite() && h > 0.0) {
+        return (points.to_vec(), vec![1.0; n]);
+    }
+    let mut lo = [f64::INFINITY; 3];
+    for p in points.chunks_exact(3) {
+        for a in 0..3 {
+            lo[a] = lo[a].min(p[a]);
+        }
+    }
+    let inv = 1.0 / h;
+    // 21 bits per axis: 2^21 cells of side h per axis (clamped; far points share the last cell).
+    const MAXC: f64 = ((1u64 << 21) - 1) as f64;
+    let mut keyed: Vec<(u64, u32)> = points
+        .chunks_exact(3)
+        .enumerate()
+        .map(|(i, p)| {
+            let mut k = 0u64;
+            for a in 0..3 {
+                let c = ((p[a] - lo[a]) * inv).floor().clamp(0.0, MAXC) as u64;
+                k = (k << 21) | c;
+            }
+            (k, i as u32)
+        })
+        .collect();
+    keyed.sort_unstable();
+    let mut cent = Vec::new();
+    let mut cnt = Vec::new();
+    let mut i = 0;
+    while i < keyed.len() {
+        let mut j = i;
+        let mut s = [0.0f64; 3];
+        while j < keyed.len() && keyed[j].0 == keyed[i].0 {
+            let q = keyed[j].1 as usize;
+            for a in 0..3 {
+                s[a] += points[3 * q + a];
+            }
+            j += 1;
+        }
+        let c = (j - i) as f64;
+        cent.extend_from_slice(&[s[0] / c, s[1] / c, s[2] / c]);
+        cnt.push(c);
+        i = j;
+    }
+    (cent, cnt)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -181,6 +235,39 @@ mod tests {
                 .filter(|&i| (0..3).map(|a| (pts[3 * i + a] - q[a]).powi(2)).sum::<f64>() < r * r)
                 .collect();
             assert_eq!(found, brute);
+        }
+    }
+
+    #[test]
+    fn voxel_downsample_preserves_mass_and_centroid() {
+        let mut pts = Vec::new();
+        let mut state = 12345u64;
+        for _ in 0..3000 {
+            for _ in 0..3 {
+                state = state
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                pts.push((state >> 11) as f64 / (1u64 << 53) as f64);
+            }
+        }
+        let (c, w) = voxel_downsample(&pts, 0.25);
+        assert!(w.len() <= 64 && w.len() >= 60);
+        assert_eq!(w.iter().sum::<f64>(), 3000.0);
+        for a in 0..3 {
+            let m0: f64 = pts.iter().skip(a).step_by(3).sum::<f64>() / 3000.0;
+            let m1: f64 = c
+                .iter()
+                .skip(a)
+                .step_by(3)
+                .zip(&w)
+                .map(|(v, k)| v * k)
+                .sum::<f64>()
+                / 3000.0;
+            assert!((m0 - m1).abs() < 1e-12);
+        }
+        // every centroid lies inside its cell
+        for p in c.chunks_exact(3) {
+            assert!(p.iter().all(|v| (0.0..=1.0).contains(v)));
         }
     }
 }

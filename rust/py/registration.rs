@@ -270,7 +270,8 @@ impl DeformGraph {
     /// `points` (M, 3), `sigma2`, `iterations`, `energy`, `n_p`, `n_data`, `history` (k, 2).
     #[allow(clippy::too_many_arguments)]
     #[pyo3(signature = (x, r, t, *, sigma2_start, omega, beta_smooth, beta_relative, beta_small,
-        sigma2_min, anneal, anneal_floor, max_iter, tol, cutoff, single, rigid_iters, solver, damping, cg_tol, cg_max))]
+        sigma2_min, anneal, anneal_floor, max_iter, tol, cutoff, single, rigid_iters, solver, damping, cg_tol, cg_max,
+        subsample=0.0, motion_tol=0.0, voxel_min=0.0))]
     fn register_frame<'py>(
         &self,
         py: Python<'py>,
@@ -294,6 +295,9 @@ impl DeformGraph {
         damping: f64,
         cg_tol: f64,
         cg_max: usize,
+        subsample: f64,
+        motion_tol: f64,
+        voxel_min: f64,
     ) -> PyResult<Bound<'py, PyDict>> {
         let xs = points(py, &x, "x")?;
         let st = read_state(py, &r, &t, self.g.n_nodes())?;
@@ -328,6 +332,9 @@ impl DeformGraph {
             damping,
             cg_tol,
             cg_max,
+            subsample,
+            motion_tol,
+            voxel_min,
         };
         let res = py
             .detach(|| deform::register_frame(&self.g, st, xs, &p))
