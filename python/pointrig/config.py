@@ -176,7 +176,7 @@ class StructureConfig:
     # attach on one side (mean unit direction to them at least this long), put it at the
     # part's opposite end (shoulder of an arm, wrist of a hand); 0 = the paper's centre
     root_end_alignment: float = 0.7
-    root_choice: str = "centroid"  # root bone: "centroid" = centre nearest the rest-pose
+    root_choice: str = "largest"  # root bone: "centroid" = centre nearest the rest-pose
     #   centroid (§5.3), "largest" = the bone with the most points
 
 
