@@ -128,10 +128,21 @@ def test_result_contract(arm_result):
     assert r.R.shape == (F, B, 3, 3) and r.T.shape == (F, B, 3)
     assert r.joints_rest.shape == (B, 3) and r.c_tilde.shape == (B, 3)
     assert (r.bone_parent == -1).sum() == 1 and r.bone_parent[r.root] == -1
-    # root = bone whose centre is nearest the rest centroid
-    centres = np.array([d["rest"][r.labels == b].mean(0) for b in range(B)])
-    assert r.root == int(np.argmin(np.linalg.norm(centres - d["rest"].mean(0), axis=1)))
-    np.testing.assert_allclose(r.joints_rest[r.root], centres[r.root])
+    # root = bone with the most points (root_choice="largest"); its joint is its centre unless
+    # all its children attach on one side, then the far end of the part
+    counts = np.bincount(r.labels, minlength=B)
+    assert r.root == int(np.argmax(counts))
+    pts = d["rest"][r.labels == r.root]
+    centre = pts.mean(0)
+    kids = np.flatnonzero(r.bone_parent == r.root)
+    u = r.joints_rest[kids] - centre
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    if np.linalg.norm(u.mean(0)) >= StructureConfig().root_end_alignment:
+        axis = u.mean(0) / np.linalg.norm(u.mean(0))
+        want = centre + axis * np.quantile((pts - centre) @ axis, 0.03)
+    else:
+        want = centre
+    np.testing.assert_allclose(r.joints_rest[r.root], want, atol=1e-12)
     # bone transforms are the Eq. 14 fits of the final labels
     R2, T2, _ = fit_bones(d["rest"], d["points"], r.labels, B)
     np.testing.assert_allclose(r.R, R2, atol=1e-12)
