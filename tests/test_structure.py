@@ -220,3 +220,22 @@ def test_root_joint_at_the_free_end_of_a_one_sided_root_part():
     np.testing.assert_allclose(got, rod.mean(0))
     got = root_joint_position(rod, labels, 0, joints, np.array([-1, 0]), 0.0)
     np.testing.assert_allclose(got, rod.mean(0))
+
+
+def test_swing_angles_ignore_twist_about_the_axis():
+    """Oracle: a rotation about the axis between two bones has zero swing; a rotation about a
+    perpendicular axis swings by its full angle; a mix swings by the angle between a and R a."""
+    from scipy.spatial.transform import Rotation
+
+    from pointrig.structure import swing_angles
+
+    axis = np.array([[0.6, 0.8, 0.0]])
+    R = np.zeros((3, 2, 3, 3))
+    R[:, 0] = np.eye(3)
+    R[0, 1] = Rotation.from_rotvec(0.7 * axis[0]).as_matrix()
+    R[1, 1] = Rotation.from_rotvec([0, 0, 0.4]).as_matrix()
+    mix = Rotation.from_rotvec([0.3, -0.2, 0.5]).as_matrix()
+    R[2, 1] = mix
+    got = swing_angles(R, np.array([[0, 1]]), axis)[0]
+    want = np.arccos(np.clip(axis[0] @ mix @ axis[0], -1, 1))
+    np.testing.assert_allclose(got, [0.0, 0.4, want], atol=1e-7)

@@ -152,6 +152,10 @@ class StructureConfig:
     # relative rotation R_i^tT R_j^t stays below merge_angle_deg
     merge_angle_deg: float = 10.0
     merge_percentile: float = 95.0
+    # measure only the swing of the relative rotation (how far it turns the rest-pose axis
+    # between the two bones' centres), not the twist about that axis: twist of a featureless
+    # limb is barely observable from one view and registration drift shows up as twist
+    merge_ignore_twist: bool = False
     # the percentile is first discounted (in quadrature) by noise_margin times the percentile a
     # noise-only relative rotation would reach, from each bone's Kabsch rotation variance
     # s^2 tr(J^-1) (own residual s^2, inertia J): only tiny or degenerate patches are affected

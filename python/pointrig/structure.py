@@ -180,6 +180,27 @@ def relative_rotation_angles(R: np.ndarray, pairs: np.ndarray) -> np.ndarray:
     return np.arccos(np.clip(0.5 * (tr - 1.0), -1.0, 1.0))
 
 
+def swing_angles(R: np.ndarray, pairs: np.ndarray, axes: np.ndarray) -> np.ndarray:
+    """Swing angle (radians) per pair and frame, ``(P, F)``: the angle by which the relative
+    rotation ``R_i^tT R_j^t`` turns the unit ``axes (P, 3)`` (the rest-pose direction between
+    the two bones' centres). Twist about that axis is ignored."""
+    pairs = np.asarray(pairs, np.int64).reshape(-1, 2)
+    rel = np.einsum("fpji,fpjk->fpik", R[:, pairs[:, 0]], R[:, pairs[:, 1]])
+    cos = np.einsum("fpik,pk,pi->pf", rel, axes, axes)
+    return np.arccos(np.clip(cos, -1.0, 1.0))
+
+
+def _pair_axes(Q: np.ndarray, labels: np.ndarray, pairs: list[tuple[int, int]]) -> np.ndarray:
+    """Unit rest-pose direction between the centres of each pair of bones, ``(P, 3)``."""
+    B = int(labels.max()) + 1
+    centres = np.zeros((B, 3))
+    np.add.at(centres, labels, Q)
+    centres /= np.maximum(np.bincount(labels, minlength=B), 1)[:, None]
+    P = np.array(pairs, np.int64).reshape(-1, 2)
+    d = centres[P[:, 1]] - centres[P[:, 0]]
+    return d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+
+
 # --------------------------------------------------------------------------------------------
 # internals
 # --------------------------------------------------------------------------------------------
@@ -348,14 +369,16 @@ def rotation_noise_var(Q: np.ndarray, labels: np.ndarray, own_res: np.ndarray, B
 
 
 def _merge_stat(R: np.ndarray, pairs: list[tuple[int, int]], pct: float,
-                noise_var: np.ndarray | None = None, margin: float = 1.0) -> np.ndarray:
+                noise_var: np.ndarray | None = None, margin: float = 1.0,
+                axes: np.ndarray | None = None) -> np.ndarray:
     """Relative-rotation statistic (degrees) per pair: the ``pct``-th percentile over frames of
-    the angle of ``R_i^tT R_j^t``, minus (in quadrature) the same percentile expected from the
-    Kabsch noise of the two bones alone (``margin`` times it)."""
+    the angle of ``R_i^tT R_j^t`` (or, with ``axes``, of its swing away from the axis between
+    the bones, see :func:`swing_angles`), minus (in quadrature) the same percentile expected
+    from the Kabsch noise of the two bones alone (``margin`` times it)."""
     if not pairs:
         return np.zeros(0)
     P = np.array(pairs)
-    ang = relative_rotation_angles(R, P)
+    ang = relative_rotation_angles(R, P) if axes is None else swing_angles(R, P, axes)
     stat = np.percentile(ang, pct, axis=1)
     if noise_var is not None and margin > 0:
         from scipy.stats import chi
@@ -363,7 +386,8 @@ def _merge_stat(R: np.ndarray, pairs: list[tuple[int, int]], pct: float,
         # a relative rotation made of noise only is ~ isotropic Gaussian in 3 axes:
         # its angle is chi(3)-distributed with E[theta^2] = var_i + var_j
         var = noise_var[P[:, 0]] + noise_var[P[:, 1]]
-        q = chi.ppf(pct / 100.0, 3) / np.sqrt(3.0)
+        dof = 3 if axes is None else 2  # a swing has two rotational degrees of freedom
+        q = chi.ppf(pct / 100.0, dof) / np.sqrt(3.0)
         noise = margin * q * np.sqrt(var)
         stat = np.sqrt(np.maximum(stat ** 2 - noise ** 2, 0.0))
     return np.degrees(stat)
@@ -403,7 +427,8 @@ def _merge_batch(ctx: _Ctx, labels: np.ndarray, extra_pairs: list[tuple[int, int
         own = _core.cluster_residuals(ctx.Q, ctx.Y, R, T,
                                       np.ascontiguousarray(labels[:, None]))[:, 0]
         nv = rotation_noise_var(ctx.Q, labels, own, B, ctx.F)
-        stat = _merge_stat(R, pairs, cfg.merge_percentile, nv, cfg.noise_margin)
+        axes = _pair_axes(ctx.Q, labels, pairs) if cfg.merge_ignore_twist else None
+        stat = _merge_stat(R, pairs, cfg.merge_percentile, nv, cfg.noise_margin, axes)
         used: set[int] = set()
         for idx in np.argsort(stat, kind="stable"):
             if stat[idx] >= cfg.merge_angle_deg:
@@ -716,7 +741,9 @@ def extract_structure(rest_points: np.ndarray, points: np.ndarray,
         if bridges:
             own = _core.cluster_residuals(Q, Y, R, T, np.ascontiguousarray(labels[:, None]))[:, 0]
             nv = rotation_noise_var(Q, labels, own, B, ctx.F)
-            st = _merge_stat(R, sorted(bridges), cfg.merge_percentile, nv, cfg.noise_margin)
+            bp = sorted(bridges)
+            axes = _pair_axes(Q, labels, bp) if cfg.merge_ignore_twist else None
+            st = _merge_stat(R, bp, cfg.merge_percentile, nv, cfg.noise_margin, axes)
             if (st < cfg.merge_angle_deg).any():
                 tree_pairs = sorted(bridges)
                 continue
