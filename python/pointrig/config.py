@@ -160,6 +160,10 @@ class StructureConfig:
     # noise-only relative rotation would reach, from each bone's Kabsch rotation variance
     # s^2 tr(J^-1) (own residual s^2, inertia J): only tiny or degenerate patches are affected
     noise_margin: float = 1.0
+    # registration residuals are spatially correlated (patches slide/drift as a whole): the
+    # Kabsch rotation variance above is multiplied by n^noise_corr_exponent (n = the bone's
+    # points), i.e. only n^(1 - exponent) points count as independent; 0 = i.i.d. residuals
+    noise_corr_exponent: float = 0.5  # 0 = i.i.d. residuals; 0.5 for drifting registrations (docs/structure.md)
     min_cluster_fraction: float = 0.005  # clusters with fewer than this * M points are absorbed
     leaf_min_fraction: float = 0.01  # spurious leaf: a leaf at a branching parent with < this * M
     # blend band: a bone with >= 2 tree neighbours whose trajectories are fitted by a per-point

@@ -343,7 +343,7 @@ def _touch_pairs(ctx: _Ctx, labels: np.ndarray, min_pairs: int,
 
 
 def rotation_noise_var(Q: np.ndarray, labels: np.ndarray, own_res: np.ndarray, B: int,
-                       n_frames: int) -> np.ndarray:
+                       n_frames: int, corr_exponent: float = 0.0) -> np.ndarray:
     """Expected squared angle (rad^2) of the Kabsch rotation noise of each bone, ``(B,)``.
 
     For ``n`` points with isotropic residual variance ``s^2`` per coordinate, the linearised
@@ -351,6 +351,9 @@ def rotation_noise_var(Q: np.ndarray, labels: np.ndarray, own_res: np.ndarray, B
     inertia tensor of the centred rest points), so ``E[theta^2] = s^2 tr(J^-1)``. ``s^2`` is the
     bone's own residual per coordinate and frame (6 degrees of freedom removed per frame).
     Large, well-spread bones get ~0; tiny or degenerate (collinear) patches get a large value.
+    Registration residuals are spatially correlated (a patch slides as a whole), so only
+    ``n^(1 - corr_exponent)`` of the ``n`` points count as independent: the variance is
+    multiplied by ``n^corr_exponent`` (0 = independent points, 1 = one rigid drift per bone).
     """
     out = np.full(B, np.inf)
     for b in range(B):
@@ -364,7 +367,7 @@ def rotation_noise_var(Q: np.ndarray, labels: np.ndarray, own_res: np.ndarray, B
         if ev[0] <= 1e-12 * max(ev[-1], 1e-300):
             continue
         s2 = own_res[sel].sum() / max(n_frames * (3 * n - 6), 1)
-        out[b] = s2 * float((1.0 / ev).sum())
+        out[b] = s2 * float((1.0 / ev).sum()) * float(n) ** corr_exponent
     return out
 
 
@@ -426,7 +429,7 @@ def _merge_batch(ctx: _Ctx, labels: np.ndarray, extra_pairs: list[tuple[int, int
     elif pairs:
         own = _core.cluster_residuals(ctx.Q, ctx.Y, R, T,
                                       np.ascontiguousarray(labels[:, None]))[:, 0]
-        nv = rotation_noise_var(ctx.Q, labels, own, B, ctx.F)
+        nv = rotation_noise_var(ctx.Q, labels, own, B, ctx.F, cfg.noise_corr_exponent)
         axes = _pair_axes(ctx.Q, labels, pairs) if cfg.merge_ignore_twist else None
         stat = _merge_stat(R, pairs, cfg.merge_percentile, nv, cfg.noise_margin, axes)
         used: set[int] = set()
@@ -740,7 +743,7 @@ def extract_structure(rest_points: np.ndarray, points: np.ndarray,
         # motion test also along bridge edges (bones that do not touch)
         if bridges:
             own = _core.cluster_residuals(Q, Y, R, T, np.ascontiguousarray(labels[:, None]))[:, 0]
-            nv = rotation_noise_var(Q, labels, own, B, ctx.F)
+            nv = rotation_noise_var(Q, labels, own, B, ctx.F, cfg.noise_corr_exponent)
             bp = sorted(bridges)
             axes = _pair_axes(Q, labels, bp) if cfg.merge_ignore_twist else None
             st = _merge_stat(R, bp, cfg.merge_percentile, nv, cfg.noise_margin, axes)
