@@ -19,9 +19,7 @@ use crate::core::qp;
 
 fn indices(arr: &PyReadonlyArray2<'_, i64>, name: &str) -> PyResult<(Vec<usize>, usize)> {
     let cols = arr.shape()[1];
-    let s = arr
-        .c_slice()
-        .map_err(|_| PyValueError::new_err(format!("{name}: array must be C-contiguous")))?;
+    let s = arr.c_slice(name)?;
     let out = s
         .iter()
         .map(|&v| {
@@ -33,10 +31,7 @@ fn indices(arr: &PyReadonlyArray2<'_, i64>, name: &str) -> PyResult<(Vec<usize>,
 }
 
 fn parents(arr: &PyReadonlyArray1<'_, i64>) -> PyResult<Vec<i64>> {
-    Ok(arr
-        .c_slice()
-        .map_err(|_| PyValueError::new_err("bone_parent: array must be contiguous"))?
-        .to_vec())
+    Ok(arr.c_slice("bone_parent")?.to_vec())
 }
 
 /// Work out (F, M, B) from the bone arrays and check they agree.
@@ -118,11 +113,7 @@ fn lbs_fit_weights<'py>(
     let a = flat2(py, &a, "a", d.m)?;
     let z = points(py, &z, "z")?;
     let al = match &allowed {
-        Some(al) => Some(
-            al.c_slice()
-                .map_err(|_| PyValueError::new_err("allowed: array must be C-contiguous"))?
-                .to_vec(),
-        ),
+        Some(al) => Some(al.c_slice("allowed")?.to_vec()),
         None => None,
     };
     let (idx, w, res) = py
@@ -247,8 +238,7 @@ fn lbs_estep_frames<'py>(
     let vs = points(py, &v, "v")?;
     let taus = flat1(py, &tau, "tau")?;
     let offs = offsets
-        .c_slice()
-        .map_err(|_| PyValueError::new_err("offsets: array must be contiguous"))?
+        .c_slice("offsets")?
         .iter()
         .map(|&o| {
             usize::try_from(o).map_err(|_| PyValueError::new_err(format!("offsets: negative {o}")))

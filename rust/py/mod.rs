@@ -23,17 +23,20 @@ mod structure;
 /// rust-numpy's `as_slice` also accepts Fortran-ordered arrays, whose flat data would then be
 /// read transposed; every binding goes through this instead.
 pub(crate) trait CSlice<T> {
-    fn c_slice(&self) -> Result<&[T], ()>;
+    /// The data as a flat row-major slice, or `ValueError` naming the array.
+    fn c_slice(&self, name: &str) -> PyResult<&[T]>;
 }
 
 impl<T: numpy::Element, D: numpy::ndarray::Dimension> CSlice<T>
     for numpy::PyReadonlyArray<'_, T, D>
 {
-    fn c_slice(&self) -> Result<&[T], ()> {
-        if self.is_c_contiguous() {
-            self.as_slice().map_err(|_| ())
-        } else {
-            Err(())
+    fn c_slice(&self, name: &str) -> PyResult<&[T]> {
+        let contiguous = self.is_c_contiguous();
+        match self.as_slice() {
+            Ok(s) if contiguous => Ok(s),
+            _ => Err(PyValueError::new_err(format!(
+                "{name}: array must be C-contiguous (use numpy.ascontiguousarray)"
+            ))),
         }
     }
 }
@@ -70,11 +73,7 @@ pub(crate) fn flat2<'a>(
             shape[0], shape[1]
         )));
     }
-    let s = arr.c_slice().map_err(|_| {
-        PyValueError::new_err(format!(
-            "{name}: array must be C-contiguous (use numpy.ascontiguousarray)"
-        ))
-    })?;
+    let s = arr.c_slice(name)?;
     check_finite(name, s).map_err(|e| to_pyerr(py, e))?;
     Ok(s)
 }
@@ -94,9 +93,7 @@ pub(crate) fn flat1<'a>(
     arr: &'a PyReadonlyArray1<'_, f64>,
     name: &str,
 ) -> PyResult<&'a [f64]> {
-    let s = arr
-        .c_slice()
-        .map_err(|_| PyValueError::new_err(format!("{name}: array must be contiguous")))?;
+    let s = arr.c_slice(name)?;
     check_finite(name, s).map_err(|e| to_pyerr(py, e))?;
     Ok(s)
 }

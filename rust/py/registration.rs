@@ -32,9 +32,7 @@ fn read_state(
             "R must have shape ({j}, 3, 3)"
         )));
     }
-    let rsl = r
-        .c_slice()
-        .map_err(|_| PyValueError::new_err("R must be C-contiguous"))?;
+    let rsl = r.c_slice("R")?;
     check_finite("R", rsl).map_err(|e| to_pyerr(py, e))?;
     let tsl = points(py, t, "T")?;
     if tsl.len() != 3 * j {
@@ -91,15 +89,11 @@ impl DeformGraph {
         let n = points(py, &nodes, "nodes")?;
         let k = pn_idx.shape()[1];
         let w = flat2(py, &pn_w, "pn_w", k)?;
-        let idx = pn_idx
-            .c_slice()
-            .map_err(|_| PyValueError::new_err("pn_idx must be C-contiguous"))?;
+        let idx = pn_idx.c_slice("pn_idx")?;
         if edges.shape()[1] != 2 {
             return Err(PyValueError::new_err("edges must have shape (E, 2)"));
         }
-        let e = edges
-            .c_slice()
-            .map_err(|_| PyValueError::new_err("edges must be C-contiguous"))?;
+        let e = edges.c_slice("edges")?;
         let g = Graph::new(r, n, idx, w, k, e).map_err(|e| to_pyerr(py, e))?;
         Ok(DeformGraph { g })
     }

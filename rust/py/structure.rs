@@ -29,18 +29,9 @@ fn flat_nd<'a>(
             "{name}: expected {lead} leading dims then {tail:?}, got shape {shape:?}"
         )));
     }
-    let s = arr.c_slice().map_err(|_| {
-        PyValueError::new_err(format!(
-            "{name}: array must be C-contiguous (use numpy.ascontiguousarray)"
-        ))
-    })?;
+    let s = arr.c_slice(name)?;
     check_finite(name, s).map_err(|e| to_pyerr(py, e))?;
     Ok((s, shape[..lead].to_vec()))
-}
-
-fn int1<'a>(arr: &'a PyReadonlyArray1<'_, i64>, name: &str) -> PyResult<&'a [i64]> {
-    arr.c_slice()
-        .map_err(|_| PyValueError::new_err(format!("{name}: int64 array must be contiguous")))
 }
 
 fn check_frames(f_pts: &[usize], m: usize) -> PyResult<usize> {
@@ -74,12 +65,9 @@ fn cluster_fit<'py>(
     let m = q.len() / 3;
     let (y, lead) = flat_nd(py, &points_seq, "points", 2, &[3])?;
     let f = check_frames(&lead, m)?;
-    let l = int1(&labels, "labels")?;
+    let l = labels.c_slice("labels")?;
     let w = match &weights {
-        Some(w) => Some(
-            w.c_slice()
-                .map_err(|_| PyValueError::new_err("weights must be contiguous"))?,
-        ),
+        Some(w) => Some(w.c_slice("weights")?),
         None => None,
     };
     let fits = py
@@ -108,9 +96,7 @@ fn cluster_residuals<'py>(
     let (r, _) = flat_nd(py, &rotations, "R", 2, &[3, 3])?;
     let (t, _) = flat_nd(py, &translations, "T", 2, &[3])?;
     let c = candidates.shape()[1];
-    let cand = candidates
-        .c_slice()
-        .map_err(|_| PyValueError::new_err("candidates must be C-contiguous int64"))?;
+    let cand = candidates.c_slice("candidates")?;
     let out = py
         .detach(|| cluster::cluster_residuals(q, y, r, t, cand, c))
         .map_err(|e| to_pyerr(py, e))?;
@@ -132,15 +118,13 @@ fn swap_residuals<'py>(
     let m = q.len() / 3;
     let (y, lead) = flat_nd(py, &points_seq, "points", 2, &[3])?;
     check_frames(&lead, m)?;
-    let l = int1(&labels, "labels")?;
+    let l = labels.c_slice("labels")?;
     let (r, _) = flat_nd(py, &rotations, "R", 2, &[3, 3])?;
     let (t, _) = flat_nd(py, &translations, "T", 2, &[3])?;
     if pairs.shape()[1] != 2 {
         return Err(PyValueError::new_err("pairs must be (P, 2)"));
     }
-    let p = pairs
-        .c_slice()
-        .map_err(|_| PyValueError::new_err("pairs must be C-contiguous int64"))?;
+    let p = pairs.c_slice("pairs")?;
     let out = py
         .detach(|| cluster::swap_residuals(q, y, l, r, t, p))
         .map_err(|e| to_pyerr(py, e))?;
