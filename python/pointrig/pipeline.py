@@ -138,13 +138,12 @@ def extract(
 
     # ---- step 1: registration (with checkpoint) ---------------------------------------
     t0 = time.perf_counter()
-    key = reg_mod.cache_key(seq, config.registration)
     reg = None
     ckpt = None if out is None else out / "registration.npz"
     if resume and ckpt is not None and ckpt.exists():
         try:
             cached = reg_mod.RegistrationResult.load(ckpt)
-            if cached.params.get("cache_key") == key:
+            if cached.key == reg_mod.cache_key(seq, config.registration):
                 reg = cached
                 log.info("reusing registration checkpoint %s", ckpt)
         except Exception as exc:  # a stale or damaged checkpoint is recomputed, not fatal
@@ -152,7 +151,6 @@ def extract(
     reused = reg is not None
     if reg is None:
         reg = reg_mod.register_sequence(seq, config.registration, progress=report("registration"))
-        reg.params["cache_key"] = key
         if ckpt is not None:
             reg.save(ckpt)
     timings["registration"] = time.perf_counter() - t0
