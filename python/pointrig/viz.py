@@ -176,9 +176,7 @@ def render_frame(points: np.ndarray, colors: np.ndarray | None, joints: np.ndarr
         order = np.argsort(-points[:, 2])
         uv = view.project(points[order])
         if colors is None:
-            z = points[order, 2]
-            zn = (z - z.min()) / max(np.ptp(z), 1e-9)
-            cols = np.stack([255 * (1 - zn), 80 + 100 * zn, 255 * zn], 1).astype(np.uint8)
+            cols = depth_colors(points[order, 2])
         else:
             cols = colors[order]
         arr = np.asarray(img).copy()
