@@ -157,8 +157,11 @@ class DeformGraph:
         r_pre: npt.NDArray[np.float64], t_pre: npt.NDArray[np.float64],
         p1: npt.NDArray[np.float64], px: npt.NDArray[np.float64],
         sum_x2: float, n_p: float, sigma2: float, beta_smooth: float, beta_small: float,
+        robust: float = 0.0,
     ) -> float:
-        """Eq. 8a from E-step statistics (``gmm_estep``), E_small relative to ``(r_pre, t_pre)``."""
+        """Eq. 8a from E-step statistics (``gmm_estep``), E_small relative to ``(r_pre, t_pre)``;
+        ``robust = c > 0``: E_smooth with the Cauchy loss ``s^2 log(1 + |r|^2 / s^2)`` per
+        edge, ``s = c * |n_k - n_j|``."""
     def node_update(
         self, j: int, r: npt.NDArray[np.float64], t: npt.NDArray[np.float64],
         r_pre: npt.NDArray[np.float64], t_pre: npt.NDArray[np.float64],
@@ -170,9 +173,10 @@ class DeformGraph:
         self, r: npt.NDArray[np.float64], t: npt.NDArray[np.float64],
         p1: npt.NDArray[np.float64], px: npt.NDArray[np.float64],
         sigma2: float, beta_smooth: float, beta_small: float,
-        damping: float = 0.0, cg_tol: float = 1e-8, cg_max: int = 500,
+        damping: float = 0.0, cg_tol: float = 1e-8, cg_max: int = 500, robust: float = 0.0,
     ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-        """One joint Gauss-Newton step on all nodes: new ``R, T``."""
+        """One joint Gauss-Newton step on all nodes: new ``R, T`` (``robust > 0``: one IRLS
+        step of the Cauchy E_smooth, edge weights fixed at the input state)."""
     def register_frame(
         self, x: npt.NDArray[np.float64], r: npt.NDArray[np.float64], t: npt.NDArray[np.float64], *,
         sigma2_start: float, omega: float, beta_smooth: float, beta_relative: bool,
@@ -180,6 +184,7 @@ class DeformGraph:
         max_iter: int, tol: float, cutoff: float | None, single: bool, rigid_iters: int,
         solver: str, damping: float, cg_tol: float, cg_max: int,
         subsample: float = 0.0, motion_tol: float = 0.0, voxel_min: float = 0.0,
+        robust: float = 0.0,
     ) -> dict:
         """Algorithm 1 on one frame (see docs/registration.md): dict with ``R``, ``T``,
         ``points (M, 3)``, ``sigma2``, ``iterations``, ``energy``, ``n_p``, ``n_data``,

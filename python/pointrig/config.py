@@ -75,7 +75,7 @@ class RegistrationConfig:
     solver: str = "gauss_newton"  # M-step: "gauss_newton" (joint, all nodes) | "sweeps" (paper §4.3)
     beta_smooth_mode: str = "relative"  # "relative": beta = beta_smooth_rel * N_p / (sigma^2 * edges); "fixed": paper
     beta_smooth_rel: float = 0.1  # lambda of the relative mode (smooth weight per edge / data weight per edge)
-    sigma2_start: str = "data"  # per-frame start: "data" (CPD-style, capped) | "fixed" (sigma2_init, paper)
+    sigma2_start: str = "data"  # per-frame start: "data" (CPD-style, capped) | "residual" (from the predicted template's nearest-neighbour misfit) | "fixed" (sigma2_init, paper)
     sigma2_start_max: float = 0.01  # cap of the data-driven start, m^2 (10 cm std)
     sigma2_min: float = 1e-5  # floor of Eq. 12 (guards the collapse), m^2
     sigma2_anneal: float = 0.5  # coarse-to-fine: sigma^2 capped at anneal * previous until sigma2_init (1 = off)
@@ -87,6 +87,7 @@ class RegistrationConfig:
     cg_tolerance: float = 1e-6  # relative residual of the block-Jacobi PCG solve
     cg_max_iterations: int = 300
     subsample: float = 1.0  # coarse E-step on voxel centroids of side subsample * sigma (count-weighted) while that halves N (0 = full data)
+    smooth_robust: float = 0.0  # robust E_smooth: Cauchy scale c x edge rest length (0 = quadratic Eq. 6; docs/registration.md)
     motion_tol: float = 0.1  # early stop: RMS template motion in one iteration < motion_tol * sigma (0 = off)
     density_voxel: float = 0.0  # fine-stage data = unit-weight voxel centroids of side density_voxel x rest-point spacing (uniform density; 0 = raw points)
     lost_fraction: float = 0.05  # N_p / N below this = tracking lost -> retry coarse

@@ -198,8 +198,11 @@ def _validate(config: RegistrationConfig, n_frames: int) -> None:
         raise ConfigError(f"[registration] solver must be 'gauss_newton' or 'sweeps', got {config.solver!r}")
     if config.beta_smooth_mode not in ("relative", "fixed"):
         raise ConfigError(f"[registration] beta_smooth_mode must be 'relative' or 'fixed'")
-    if config.sigma2_start not in ("data", "fixed"):
-        raise ConfigError(f"[registration] sigma2_start must be 'data' or 'fixed'")
+    if config.sigma2_start not in ("data", "residual", "fixed"):
+        raise ConfigError(
+            f"[registration] sigma2_start must be 'data', 'residual' or 'fixed', "
+            f"got {config.sigma2_start!r}"
+        )
     if not 0 <= config.rest_frame < n_frames:
         raise ConfigError(f"[registration] rest_frame {config.rest_frame} outside 0..{n_frames - 1}")
     if not (0.0 <= config.omega < 1.0):
@@ -215,6 +218,14 @@ def _cpd_sigma2(y: np.ndarray, x: np.ndarray) -> float:
     m, n = len(y), len(x)
     s = n * np.sum(y * y) + m * np.sum(x * x) - 2.0 * np.dot(y.sum(0), x.sum(0))
     return float(s / (3.0 * m * n))
+
+
+def _residual_sigma2(y: np.ndarray, x: np.ndarray) -> float:
+    """Start sigma^2 from how far the predicted template is from the data: the mean squared
+    nearest-neighbour distance in both directions, per dimension (m^2)."""
+    dy = cKDTree(x).query(y)[0]
+    dx = cKDTree(y).query(x)[0]
+    return float((np.mean(dy**2) + np.mean(dx**2)) / 6.0)
 
 
 def _predict(r1, t1, r0, t0, nodes, gain):
@@ -250,6 +261,7 @@ def _frame_kwargs(config: RegistrationConfig) -> dict[str, Any]:
         cg_max=config.cg_max_iterations,
         subsample=config.subsample,
         motion_tol=config.motion_tol,
+        robust=config.smooth_robust,
     )
 
 
@@ -366,6 +378,8 @@ def _register_one(g, x, r_init, t_init, config, kw, sigma2_start=None, extra_rig
     if sigma2_start is None:
         if config.sigma2_start == "data":
             s2 = min(max(_cpd_sigma2(y0, x), config.sigma2_init), config.sigma2_start_max)
+        elif config.sigma2_start == "residual":
+            s2 = min(max(_residual_sigma2(y0, x), config.sigma2_min), config.sigma2_start_max)
         else:
             s2 = config.sigma2_init
     else:

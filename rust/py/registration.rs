@@ -125,7 +125,7 @@ impl DeformGraph {
 
     /// Eq. 8a from the E-step statistics.
     #[allow(clippy::too_many_arguments)]
-    #[pyo3(signature = (r, t, r_pre, t_pre, p1, px, sum_x2, n_p, sigma2, beta_smooth, beta_small))]
+    #[pyo3(signature = (r, t, r_pre, t_pre, p1, px, sum_x2, n_p, sigma2, beta_smooth, beta_small, robust=0.0))]
     fn energy(
         &self,
         py: Python<'_>,
@@ -140,6 +140,7 @@ impl DeformGraph {
         sigma2: f64,
         beta_smooth: f64,
         beta_small: f64,
+        robust: f64,
     ) -> PyResult<f64> {
         let j = self.g.n_nodes();
         let st = read_state(py, &r, &t, j)?;
@@ -159,6 +160,7 @@ impl DeformGraph {
             &Weights {
                 beta_smooth,
                 beta_small,
+                robust,
             },
         ))
     }
@@ -208,6 +210,7 @@ impl DeformGraph {
             &Weights {
                 beta_smooth,
                 beta_small,
+                robust: 0.0,
             },
         );
         let rv: Vec<f64> = (0..3)
@@ -222,7 +225,7 @@ impl DeformGraph {
 
     /// One joint Gauss-Newton step on all nodes; returns the new `(R (J,3,3), T (J,3))`.
     #[allow(clippy::too_many_arguments)]
-    #[pyo3(signature = (r, t, p1, px, sigma2, beta_smooth, beta_small, damping=0.0, cg_tol=1e-8, cg_max=500))]
+    #[pyo3(signature = (r, t, p1, px, sigma2, beta_smooth, beta_small, damping=0.0, cg_tol=1e-8, cg_max=500, robust=0.0))]
     fn gauss_newton_step<'py>(
         &self,
         py: Python<'py>,
@@ -236,6 +239,7 @@ impl DeformGraph {
         damping: f64,
         cg_tol: f64,
         cg_max: usize,
+        robust: f64,
     ) -> PyResult<(Bound<'py, PyArray3<f64>>, Bound<'py, PyArray2<f64>>)> {
         let mut st = read_state(py, &r, &t, self.g.n_nodes())?;
         let (p1s, pxs) = self.data(py, &p1, &px)?;
@@ -252,6 +256,7 @@ impl DeformGraph {
         let w = Weights {
             beta_smooth,
             beta_small,
+            robust,
         };
         py.detach(|| {
             self.g
@@ -265,7 +270,7 @@ impl DeformGraph {
     #[allow(clippy::too_many_arguments)]
     #[pyo3(signature = (x, r, t, *, sigma2_start, omega, beta_smooth, beta_relative, beta_small,
         sigma2_min, anneal, anneal_floor, max_iter, tol, cutoff, single, rigid_iters, solver, damping, cg_tol, cg_max,
-        subsample=0.0, motion_tol=0.0, voxel_min=0.0))]
+        subsample=0.0, motion_tol=0.0, voxel_min=0.0, robust=0.0))]
     fn register_frame<'py>(
         &self,
         py: Python<'py>,
@@ -292,6 +297,7 @@ impl DeformGraph {
         subsample: f64,
         motion_tol: f64,
         voxel_min: f64,
+        robust: f64,
     ) -> PyResult<Bound<'py, PyDict>> {
         let xs = points(py, &x, "x")?;
         let st = read_state(py, &r, &t, self.g.n_nodes())?;
@@ -329,6 +335,7 @@ impl DeformGraph {
             subsample,
             motion_tol,
             voxel_min,
+            robust,
         };
         let res = py
             .detach(|| deform::register_frame(&self.g, st, xs, &p))
