@@ -261,33 +261,33 @@ impl Graph {
         (st.r[j] * b + n[j] + st.t[j] - n[k] - st.t[k], b.norm())
     }
 
+    /// Loss and IRLS weight of edge `e` under the Cauchy loss of [`Weights::robust`]
+    /// (`c = 0`: the quadratic Eq. 6 term, weight 1).
+    fn edge_cauchy(&self, st: &NodeState, e: usize, c: f64) -> (f64, f64) {
+        let (r, len) = self.edge_residual(st, e);
+        let r2 = r.norm_squared();
+        let s2 = (c * len).powi(2);
+        if c > 0.0 && s2 > 0.0 {
+            (s2 * (r2 / s2).ln_1p(), 1.0 / (1.0 + r2 / s2))
+        } else {
+            (r2, 1.0)
+        }
+    }
+
     /// `E_smooth` with the Cauchy loss of [`Weights::robust`] (`c = 0`: Eq. 6).
     pub fn e_smooth_robust(&self, st: &NodeState, c: f64) -> f64 {
         (0..self.edges.len())
-            .map(|e| {
-                let (r, len) = self.edge_residual(st, e);
-                let s2 = (c * len).powi(2);
-                if c > 0.0 && s2 > 0.0 {
-                    s2 * (r.norm_squared() / s2).ln_1p()
-                } else {
-                    r.norm_squared()
-                }
-            })
+            .map(|e| self.edge_cauchy(st, e, c).0)
             .sum()
     }
 
     /// IRLS weights of the robust E_smooth at `st` (all 1 when `c = 0`).
     fn edge_weights(&self, st: &NodeState, c: f64) -> Vec<f64> {
+        if !(c > 0.0) {
+            return vec![1.0; self.edges.len()];
+        }
         (0..self.edges.len())
-            .map(|e| {
-                let (r, len) = self.edge_residual(st, e);
-                let s2 = (c * len).powi(2);
-                if c > 0.0 && s2 > 0.0 {
-                    1.0 / (1.0 + r.norm_squared() / s2)
-                } else {
-                    1.0
-                }
-            })
+            .map(|e| self.edge_cauchy(st, e, c).1)
             .collect()
     }
 
