@@ -21,7 +21,13 @@
 //! Determinism: data points are split into chunks whose size depends only on N; chunk
 //! partial sums are reduced in chunk order, so results are bitwise identical for any number
 //! of threads. `exp` is a polynomial with Cody-Waite reduction (relative error ~1e-16 in
-//! double, ~2e-7 in single) that returns exactly 0 below the normal range (no subnormals).
+//! double, ~2e-7 in single) that returns exactly 0 below `EXP_FLOOR_*` (`e^-60` ~ 9e-27 in
+//! single, `e^-600` ~ 3e-261 in double). The floors sit far enough above the normal range
+//! that no product of the kernels (`e * inv * x`) becomes subnormal: a subnormal operand costs
+//! ~100 cycles, and before the floor was raised from the underflow limit the dense f32 kernel
+//! ran 2-5x slower whenever sigma was a few centimetres. The floor changes a posterior row by
+//! at most `2 M e^-60 / c0` in L1 (below 1e-12 for sigma >= 1 mm, M <= 1e5); the truncation
+//! bound below does not count it.
 
 #![allow(clippy::needless_range_loop)]
 
@@ -71,6 +77,11 @@ pub struct EStep {
     pub stats: EStepStats,
 }
 
+/// `exp_neg` returns exactly 0 below this (f64; see the module docs).
+pub const EXP_FLOOR_F64: f64 = -600.0;
+/// `exp_neg` returns exactly 0 below this (f32; see the module docs).
+pub const EXP_FLOOR_F32: f32 = -60.0;
+
 /// Inner-loop scalar (f32 or f64).
 pub trait Real:
     Copy
@@ -87,7 +98,7 @@ pub trait Real:
     fn to_f64(self) -> f64;
     /// `self * a + b` (fused where the CPU has FMA).
     fn fma(self, a: Self, b: Self) -> Self;
-    /// `exp(x)` for `x <= 0`; exactly 0 where the result would be subnormal.
+    /// `exp(x)` for `x <= 0`; exactly 0 below the type's `EXP_FLOOR_*` (no subnormals).
     fn exp_neg(x: Self) -> Self;
 }
 
@@ -107,7 +118,7 @@ impl Real for f64 {
     }
     #[inline(always)]
     fn exp_neg(x: f64) -> f64 {
-        const LOW: f64 = -708.0;
+        const LOW: f64 = EXP_FLOOR_F64;
         const LOG2E: f64 = std::f64::consts::LOG2_E;
         const LN2_HI: f64 = f64::from_bits(0x3fe6_2e42_fee0_0000);
         const LN2_LO: f64 = f64::from_bits(0x3dea_39ef_3579_3c76);
@@ -157,7 +168,7 @@ impl Real for f32 {
     }
     #[inline(always)]
     fn exp_neg(x: f32) -> f32 {
-        const LOW: f32 = -87.0;
+        const LOW: f32 = EXP_FLOOR_F32;
         const LOG2E: f32 = std::f32::consts::LOG2_E;
         const LN2_HI: f32 = 0.693_145_75;
         const LN2_LO: f32 = 1.428_606_8e-6;
@@ -220,8 +231,11 @@ impl<T: Real> Partial<T> {
 }
 
 const LANES: usize = 8;
-/// Grids with fewer cells than this run the dense kernel instead.
-const DENSE_CELLS: usize = 270;
+/// The truncated kernel runs while a query's 3 x 3 x 3 cell block holds on average fewer than
+/// this share of the template ([`Grid::mean_block`]); with wider cutoffs the exact dense kernel
+/// is as fast (measured on a 2-core machine, M = 2000, N = 11k body scan: at a 53 % share the
+/// truncated kernel took 8.7 ms and the dense one 9.8 ms).
+const DENSE_BLOCK_FRACTION: f64 = 0.6;
 const BLOCK: usize = 4;
 
 /// `e[m] = exp(-|y_m - q|^2 inv2s)` (`d2` is scratch); returns `(sum_m e, sum_m e d^2)`.
@@ -338,13 +352,142 @@ fn dense_chunk<T: Real>(
     part
 }
 
+/// Candidate template points of one group of queries, gathered contiguously (structure of
+/// arrays, padded to a multiple of `LANES`), with per-candidate accumulators.
+struct Gather<T> {
+    x: Vec<T>,
+    y: Vec<T>,
+    z: Vec<T>,
+    /// Template index (sorted order) of each candidate.
+    idx: Vec<u32>,
+    p1: Vec<T>,
+    px: Vec<T>,
+    py: Vec<T>,
+    pz: Vec<T>,
+}
+
+impl<T: Real> Gather<T> {
+    fn new(m: usize) -> Self {
+        let cap = m + LANES;
+        Gather {
+            x: vec![T::ZERO; cap],
+            y: vec![T::ZERO; cap],
+            z: vec![T::ZERO; cap],
+            idx: vec![0; cap],
+            p1: vec![T::ZERO; cap],
+            px: vec![T::ZERO; cap],
+            py: vec![T::ZERO; cap],
+            pz: vec![T::ZERO; cap],
+        }
+    }
+
+    /// Copy the template ranges in and clear the accumulators; returns the number of
+    /// candidates `n` and the padded length (a multiple of `LANES`; the padding sits at
+    /// `far`, beyond any cutoff, so it gets weight 0).
+    #[inline(always)]
+    fn fill(&mut self, tpl: &Template<T>, ranges: &[(u32, u32)], far: T) -> (usize, usize) {
+        // Element loops, not copy_from_slice: the ranges are a few points long and a memmove
+        // call per range costs more than the copy.
+        let (gx, gy, gz, gi) = (&mut self.x, &mut self.y, &mut self.z, &mut self.idx);
+        let mut off = 0;
+        for &(lo, hi) in ranges {
+            let (a, b) = (lo as usize, hi as usize);
+            let end = off + (b - a);
+            for (d, &s) in gx[off..end].iter_mut().zip(&tpl.yx[a..b]) {
+                *d = s;
+            }
+            for (d, &s) in gy[off..end].iter_mut().zip(&tpl.yy[a..b]) {
+                *d = s;
+            }
+            for (d, &s) in gz[off..end].iter_mut().zip(&tpl.yz[a..b]) {
+                *d = s;
+            }
+            for (d, k) in gi[off..end].iter_mut().zip(lo..hi) {
+                *d = k;
+            }
+            off = end;
+        }
+        let padded = off.div_ceil(LANES) * LANES;
+        for j in off..padded {
+            gx[j] = far;
+            gy[j] = far;
+            gz[j] = far;
+        }
+        self.p1[..padded].fill(T::ZERO);
+        self.px[..padded].fill(T::ZERO);
+        self.py[..padded].fill(T::ZERO);
+        self.pz[..padded].fill(T::ZERO);
+        (off, padded)
+    }
+
+    /// `e_j = exp(-d_j^2 inv2s)` over the first `len` candidates (a multiple of `LANES`),
+    /// zero where `d_j^2 >= r2`; `d2` is scratch. Returns `(sum_j e_j, sum_j e_j d_j^2,
+    /// number kept)`. Branch-free so that it vectorises.
+    #[inline(always)]
+    fn eval(
+        &self,
+        len: usize,
+        q: [T; 3],
+        inv2s: T,
+        r2: T,
+        e: &mut [T],
+        d2: &mut [T],
+    ) -> (f64, f64, usize) {
+        let e = &mut e[..len];
+        let d2 = &mut d2[..len];
+        let (xs, ys, zs) = (&self.x[..len], &self.y[..len], &self.z[..len]);
+        for (((d, &x), &y), &z) in d2.iter_mut().zip(xs).zip(ys).zip(zs) {
+            let dx = x - q[0];
+            let dy = y - q[1];
+            let dz = z - q[2];
+            *d = dx.fma(dx, dy.fma(dy, dz * dz));
+        }
+        let mut kept = 0usize;
+        for (o, &d) in e.iter_mut().zip(d2.iter()) {
+            let v = T::exp_neg(T::ZERO - d * inv2s);
+            let keep = d < r2;
+            kept += keep as usize;
+            *o = if keep { v } else { T::ZERO };
+        }
+        let mut s = [T::ZERO; LANES];
+        let mut w = [T::ZERO; LANES];
+        let (ec, er) = e.as_chunks::<LANES>();
+        let (dc, dr) = d2.as_chunks::<LANES>();
+        for (ex, dd) in ec.iter().zip(dc) {
+            for l in 0..LANES {
+                s[l] = s[l] + ex[l];
+                w[l] = ex[l].fma(dd[l], w[l]);
+            }
+        }
+        let mut ss = 0.0;
+        let mut ww = 0.0;
+        for l in 0..LANES {
+            ss += s[l].to_f64();
+            ww += w[l].to_f64();
+        }
+        for (&ek, &dk) in er.iter().zip(dr) {
+            ss += ek.to_f64();
+            ww += (ek * dk).to_f64();
+        }
+        (ss, ww, kept)
+    }
+}
+
 /// Truncated E-step: only pairs closer than `radius` (grid over the template, sorted order).
+///
+/// The data points of a chunk arrive sorted by [`Grid::key`], so consecutive points share
+/// their 3 x 3 x 3 cell block. Per group the block's template points are gathered once into
+/// contiguous buffers; then, as in the dense kernel, blocks of `BLOCK` points are evaluated
+/// branch-free against the gathered candidates (pairs beyond `radius` get weight 0) and
+/// their posteriors summed into per-candidate accumulators, which are added back to the
+/// template's at the end of the group.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 fn truncated_chunk<T: Real>(
     tpl: &Template<T>,
     grid: &Grid,
     xs: &[f64],
+    keys: &[u64],
     ws: Option<&[f64]>,
     inv2s: T,
     c0: f64,
@@ -353,56 +496,90 @@ fn truncated_chunk<T: Real>(
 ) -> Partial<T> {
     let m = tpl.yx.len();
     let n = xs.len() / 3;
+    let cap = m + LANES;
     let mut part = Partial::<T>::new(m, n);
     let r2 = T::from_f64(radius * radius);
-    let mut kept_k: Vec<u32> = Vec::with_capacity(256);
-    let mut kept_e: Vec<T> = Vec::with_capacity(256);
-    for i in 0..n {
-        let qd = [xs[3 * i], xs[3 * i + 1], xs[3 * i + 2]];
-        let q = [T::from_f64(qd[0]), T::from_f64(qd[1]), T::from_f64(qd[2])];
-        kept_k.clear();
-        kept_e.clear();
-        let mut s = 0.0;
-        let mut w = 0.0;
-        let (ranges, nr) = grid.block(qd);
-        for &(lo, hi) in &ranges[..nr] {
-            for k in lo as usize..hi as usize {
-                let dx = tpl.yx[k] - q[0];
-                let dy = tpl.yy[k] - q[1];
-                let dz = tpl.yz[k] - q[2];
-                let d2 = dx.fma(dx, dy.fma(dy, dz * dz));
-                if d2 < r2 {
-                    let v = T::exp_neg(T::ZERO - d2 * inv2s);
-                    kept_k.push(k as u32);
-                    kept_e.push(v);
-                    s += v.to_f64();
-                    w += (v * d2).to_f64();
+    let mut g = Gather::<T>::new(m);
+    let mut e = vec![T::ZERO; BLOCK * cap];
+    let mut d2 = vec![T::ZERO; cap];
+    // Padding coordinate: far beyond the cutoff from any centred query, finite in f32.
+    let far = T::from_f64(1e6);
+    let mut i0 = 0;
+    while i0 < n {
+        let key = keys[i0];
+        let mut i1 = i0 + 1;
+        while i1 < n && keys[i1] == key {
+            i1 += 1;
+        }
+        let (len, padded) = if key == u64::MAX {
+            g.fill(tpl, &[], far)
+        } else {
+            let (ranges, nr) = grid.block([xs[3 * i0], xs[3 * i0 + 1], xs[3 * i0 + 2]]);
+            g.fill(tpl, &ranges[..nr], far)
+        };
+        let mut b0 = i0;
+        while b0 < i1 {
+            let nb = BLOCK.min(i1 - b0);
+            let mut inv = [T::ZERO; BLOCK];
+            let mut q = [[T::ZERO; 3]; BLOCK];
+            for b in 0..nb {
+                let i = b0 + b;
+                q[b] = [
+                    T::from_f64(xs[3 * i]),
+                    T::from_f64(xs[3 * i + 1]),
+                    T::from_f64(xs[3 * i + 2]),
+                ];
+                let eb = &mut e[b * cap..b * cap + padded];
+                let (s, w, kept) = g.eval(padded, q[b], inv2s, r2, eb, &mut d2);
+                let den = s + c0;
+                let dropped = (m - kept) as f64;
+                let wi = ws.map_or(1.0, |v| v[i]);
+                if den > 0.0 {
+                    let invd = 1.0 / den;
+                    inv[b] = T::from_f64(wi * invd);
+                    part.pt1[i] = wi * s * invd;
+                    part.sum_sq += wi * w * invd;
+                    part.log_den += wi * den.ln();
+                    part.bound += wi * (2.0 * dropped * eps * invd).min(2.0);
+                } else {
+                    part.log_den += f64::NEG_INFINITY;
+                    part.bound += if dropped > 0.0 { 2.0 * wi } else { 0.0 };
                 }
             }
-        }
-        let den = s + c0;
-        let dropped = (m - kept_k.len()) as f64;
-        let wi = ws.map_or(1.0, |v| v[i]);
-        if den > 0.0 {
-            let inv = 1.0 / den;
-            part.pt1[i] = wi * s * inv;
-            part.sum_sq += wi * w * inv;
-            part.log_den += wi * den.ln();
-            part.bound += wi * (2.0 * dropped * eps * inv).min(2.0);
-            let invt = T::from_f64(wi * inv);
-            for (&k, &v) in kept_k.iter().zip(kept_e.iter()) {
-                let k = k as usize;
-                let a = v * invt;
-                part.p1[k] = part.p1[k] + a;
-                part.px[k] = part.px[k] + a * q[0];
-                part.py[k] = part.py[k] + a * q[1];
-                part.pz[k] = part.pz[k] + a * q[2];
+            for b in nb..BLOCK {
+                e[b * cap..b * cap + padded].fill(T::ZERO);
             }
-        } else {
-            part.log_den += f64::NEG_INFINITY;
-            part.bound += if dropped > 0.0 { 2.0 * wi } else { 0.0 };
+            let (e0, rest) = e.split_at(cap);
+            let (e1, rest) = rest.split_at(cap);
+            let (e2, e3) = rest.split_at(cap);
+            let (e0, e1, e2, e3) = (&e0[..padded], &e1[..padded], &e2[..padded], &e3[..padded]);
+            let (i0v, i1v, i2v, i3v) = (inv[0], inv[1], inv[2], inv[3]);
+            let (q0, q1, q2, q3) = (q[0], q[1], q[2], q[3]);
+            let p1 = &mut g.p1[..padded];
+            let px = &mut g.px[..padded];
+            let py = &mut g.py[..padded];
+            let pz = &mut g.pz[..padded];
+            for k in 0..padded {
+                let a0 = e0[k] * i0v;
+                let a1 = e1[k] * i1v;
+                let a2 = e2[k] * i2v;
+                let a3 = e3[k] * i3v;
+                p1[k] = p1[k] + ((a0 + a1) + (a2 + a3));
+                px[k] = px[k] + ((a0 * q0[0] + a1 * q1[0]) + (a2 * q2[0] + a3 * q3[0]));
+                py[k] = py[k] + ((a0 * q0[1] + a1 * q1[1]) + (a2 * q2[1] + a3 * q3[1]));
+                pz[k] = pz[k] + ((a0 * q0[2] + a1 * q1[2]) + (a2 * q2[2] + a3 * q3[2]));
+            }
+            part.n_pairs += (nb * len) as u64;
+            b0 += nb;
         }
-        part.n_pairs += kept_k.len() as u64;
+        for j in 0..len {
+            let k = g.idx[j] as usize;
+            part.p1[k] = part.p1[k] + g.p1[j];
+            part.px[k] = part.px[k] + g.px[j];
+            part.py[k] = part.py[k] + g.py[j];
+            part.pz[k] = part.pz[k] + g.pz[j];
+        }
+        i0 = i1;
     }
     part
 }
@@ -426,13 +603,14 @@ unsafe fn truncated_chunk_avx2<T: Real>(
     tpl: &Template<T>,
     grid: &Grid,
     xs: &[f64],
+    keys: &[u64],
     ws: Option<&[f64]>,
     inv2s: T,
     c0: f64,
     radius: f64,
     eps: f64,
 ) -> Partial<T> {
-    truncated_chunk(tpl, grid, xs, ws, inv2s, c0, radius, eps)
+    truncated_chunk(tpl, grid, xs, keys, ws, inv2s, c0, radius, eps)
 }
 
 fn has_avx2_fma() -> bool {
@@ -451,6 +629,7 @@ fn truncated_dispatch<T: Real>(
     tpl: &Template<T>,
     grid: &Grid,
     xs: &[f64],
+    keys: &[u64],
     ws: Option<&[f64]>,
     inv2s: T,
     c0: f64,
@@ -461,10 +640,12 @@ fn truncated_dispatch<T: Real>(
     {
         if has_avx2_fma() {
             // SAFETY: the CPU supports the enabled features (checked just above).
-            return unsafe { truncated_chunk_avx2(tpl, grid, xs, ws, inv2s, c0, radius, eps) };
+            return unsafe {
+                truncated_chunk_avx2(tpl, grid, xs, keys, ws, inv2s, c0, radius, eps)
+            };
         }
     }
-    truncated_chunk(tpl, grid, xs, ws, inv2s, c0, radius, eps)
+    truncated_chunk(tpl, grid, xs, keys, ws, inv2s, c0, radius, eps)
 }
 
 fn dense_dispatch<T: Real>(
@@ -555,15 +736,14 @@ fn run<T: Real>(
     let c0 = two_pi_s2.powf(1.5) * omega * m as f64 / ((1.0 - omega) * n_eff);
     let inv2s = T::from_f64(1.0 / (2.0 * sigma2));
 
-    // With a cutoff so wide that a 3x3x3 cell block holds a large share of the template
-    // (fewer than DENSE_CELLS occupied cells, i.e. more than ~10 % of it per query), the
-    // exact dense kernel is faster: it runs instead (bound 0).
+    // With a cutoff so wide that a 3x3x3 cell block holds most of the template, the exact
+    // dense kernel is as fast: it runs instead (bound 0).
     let grid = cutoff
         .map(|cf| {
             let radius = cf * sigma2.sqrt();
             (Grid::new(&yc, radius), radius, (-0.5 * cf * cf).exp())
         })
-        .filter(|(g, _, _)| g.n_occupied() >= DENSE_CELLS);
+        .filter(|(g, _, _)| g.mean_block() < DENSE_BLOCK_FRACTION * m as f64);
     let order: Vec<usize> = match &grid {
         Some((g, _, _)) => g.order().iter().map(|&k| k as usize).collect(),
         None => (0..m).collect(),
@@ -575,23 +755,51 @@ fn run<T: Real>(
     };
 
     let cl = chunk_len(n);
-    let parts: Vec<Partial<T>> = xc
-        .par_chunks(3 * cl)
-        .enumerate()
-        .map(|(ci, xs)| {
-            let ws = wx.map(|w| &w[ci * cl..ci * cl + xs.len() / 3]);
-            match &grid {
-                None => dense_dispatch(&tpl, xs, ws, inv2s, c0),
-                Some((g, radius, eps)) => {
-                    truncated_dispatch(&tpl, g, xs, ws, inv2s, c0, *radius, *eps)
-                }
-            }
-        })
-        .collect();
+    // Data order used by the kernels (empty: input order).
+    let mut perm: Vec<usize> = Vec::new();
+    let parts: Vec<Partial<T>> = match &grid {
+        None => xc
+            .par_chunks(3 * cl)
+            .enumerate()
+            .map(|(ci, xs)| {
+                let ws = wx.map(|w| &w[ci * cl..ci * cl + xs.len() / 3]);
+                dense_dispatch(&tpl, xs, ws, inv2s, c0)
+            })
+            .collect(),
+        Some((g, radius, eps)) => {
+            // Data sorted by grid key (ties by index: deterministic), so that consecutive
+            // points share their cell block; Pt1 is put back in input order below.
+            let mut keyed: Vec<(u64, u32)> = xc
+                .par_chunks_exact(3)
+                .enumerate()
+                .map(|(i, p)| (g.key([p[0], p[1], p[2]]), i as u32))
+                .collect();
+            // (key, index) pairs are distinct, so the sorted order is unique.
+            keyed.par_sort_unstable();
+            perm = keyed.iter().map(|&(_, i)| i as usize).collect();
+            let keys: Vec<u64> = keyed.iter().map(|&(k, _)| k).collect();
+            let xs_sorted: Vec<f64> = perm
+                .iter()
+                .flat_map(|&i| [xc[3 * i], xc[3 * i + 1], xc[3 * i + 2]])
+                .collect();
+            let ws_sorted: Option<Vec<f64>> = wx.map(|w| perm.iter().map(|&i| w[i]).collect());
+            xs_sorted
+                .par_chunks(3 * cl)
+                .zip(keys.par_chunks(cl))
+                .enumerate()
+                .map(|(ci, (xs, ks))| {
+                    let ws = ws_sorted
+                        .as_ref()
+                        .map(|w| &w[ci * cl..ci * cl + xs.len() / 3]);
+                    truncated_dispatch(&tpl, g, xs, ks, ws, inv2s, c0, *radius, *eps)
+                })
+                .collect()
+        }
+    };
 
     let mut p1s = vec![0.0f64; m];
     let mut pxs = vec![0.0f64; 3 * m];
-    let mut pt1 = Vec::with_capacity(n);
+    let mut pt1s = Vec::with_capacity(n);
     let mut stats = EStepStats::default();
     let mut log_den = 0.0;
     for part in &parts {
@@ -601,13 +809,22 @@ fn run<T: Real>(
             pxs[3 * k + 1] += part.py[k].to_f64();
             pxs[3 * k + 2] += part.pz[k].to_f64();
         }
-        pt1.extend_from_slice(&part.pt1);
+        pt1s.extend_from_slice(&part.pt1);
         stats.sum_sq += part.sum_sq;
         log_den += part.log_den;
         stats.trunc_bound += part.bound;
         stats.n_pairs += part.n_pairs;
     }
     // Back to input order and input coordinates (PX = P (Xc + c) = P Xc + P1 c).
+    let pt1 = if perm.is_empty() {
+        pt1s
+    } else {
+        let mut v = vec![0.0f64; n];
+        for (s, &i) in perm.iter().enumerate() {
+            v[i] = pt1s[s];
+        }
+        v
+    };
     let mut p1 = vec![0.0f64; m];
     let mut px = vec![0.0f64; 3 * m];
     for (s, &k) in order.iter().enumerate() {
@@ -715,7 +932,7 @@ mod tests {
             let x = -(i as f64) * 0.37;
             let e = <f64 as Real>::exp_neg(x);
             let r = x.exp();
-            if x < -708.0 {
+            if x < EXP_FLOOR_F64 {
                 assert_eq!(e, 0.0);
             } else {
                 assert!((e - r).abs() <= 4e-16 * r, "{x} {e} {r}");
@@ -723,7 +940,7 @@ mod tests {
             let xf = x as f32;
             let ef = <f32 as Real>::exp_neg(xf) as f64;
             let rf = (xf as f64).exp();
-            if xf < -87.0 {
+            if xf < EXP_FLOOR_F32 {
                 assert_eq!(ef, 0.0);
             } else {
                 assert!((ef - rf).abs() <= 5e-7 * rf, "{xf} {ef} {rf}");
@@ -757,6 +974,81 @@ mod tests {
         assert_eq!(r1.p1, r3.p1);
         assert_eq!(r1.px, r3.px);
         assert_eq!(r1.stats, r3.stats);
+    }
+
+    #[test]
+    fn truncated_grouped_kernel_matches_cut_brute_force_and_is_thread_independent() {
+        // Enough template points over enough cells that the grid (not the dense fallback)
+        // runs; data partly outside the template's box (empty blocks) and in input order
+        // unrelated to the grid (Pt1 must come back in input order).
+        let rnd = |n: usize, seed: u64| -> Vec<f64> {
+            let mut s = seed;
+            (0..3 * n)
+                .map(|_| {
+                    s = s
+                        .wrapping_mul(6_364_136_223_846_793_005)
+                        .wrapping_add(1_442_695_040_888_963_407);
+                    (s >> 11) as f64 / (1u64 << 53) as f64 * 0.3
+                })
+                .collect()
+        };
+        let y = rnd(3000, 1);
+        let mut x = rnd(1500, 2);
+        for v in x.iter_mut().step_by(7) {
+            *v += 0.5;
+        }
+        let (s2, om, c) = (1e-4, 0.05, 3.0);
+        let (m, n) = (y.len() / 3, x.len() / 3);
+        let w: Vec<f64> = (0..n).map(|i| 0.5 + (i % 4) as f64).collect();
+        let r = estep_weighted(&y, &x, Some(&w), s2, om, Some(c), Precision::Double).unwrap();
+        assert!(r.stats.n_pairs < (m * n) as u64 / 4, "grid path expected");
+        let n_eff: f64 = w.iter().sum();
+        let c0 = (2.0 * std::f64::consts::PI * s2).powf(1.5) * om * m as f64 / ((1.0 - om) * n_eff);
+        let r2 = c * c * s2;
+        let mut p1 = vec![0.0; m];
+        let mut px = vec![0.0; 3 * m];
+        let mut pt1 = vec![0.0; n];
+        for i in 0..n {
+            let d2: Vec<f64> = (0..m)
+                .map(|k| (0..3).map(|a| (x[3 * i + a] - y[3 * k + a]).powi(2)).sum())
+                .collect();
+            let e: Vec<f64> = d2
+                .iter()
+                .map(|&d| if d < r2 { (-d / (2.0 * s2)).exp() } else { 0.0 })
+                .collect();
+            let den: f64 = e.iter().sum::<f64>() + c0;
+            for k in 0..m {
+                let p = w[i] * e[k] / den;
+                p1[k] += p;
+                pt1[i] += p;
+                for a in 0..3 {
+                    px[3 * k + a] += p * x[3 * i + a];
+                }
+            }
+        }
+        for k in 0..m {
+            assert!((r.p1[k] - p1[k]).abs() < 1e-10, "p1[{k}]");
+            for a in 0..3 {
+                assert!((r.px[3 * k + a] - px[3 * k + a]).abs() < 1e-10);
+            }
+        }
+        for i in 0..n {
+            assert!((r.pt1[i] - pt1[i]).abs() < 1e-10, "pt1[{i}]");
+        }
+        let run = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| {
+                estep_weighted(&y, &x, Some(&w), s2, om, Some(c), Precision::Single).unwrap()
+            })
+        };
+        let (a, b) = (run(1), run(3));
+        assert_eq!(a.p1, b.p1);
+        assert_eq!(a.pt1, b.pt1);
+        assert_eq!(a.px, b.px);
+        assert_eq!(a.stats, b.stats);
     }
 
     #[test]

@@ -143,6 +143,52 @@ impl Grid {
         (out, cnt)
     }
 
+    /// Mean number of points in the 3 x 3 x 3 block of a query placed at one of the bucketed
+    /// points (the work per query of a radius search whose queries follow the points).
+    pub fn mean_block(&self) -> f64 {
+        let n = self.order.len();
+        if n == 0 {
+            return 0.0;
+        }
+        let (nx, ny) = (self.dims[0], self.dims[1]);
+        let mut total = 0.0;
+        for c in 0..self.n_cells() {
+            let cnt = self.start[c + 1] - self.start[c];
+            if cnt == 0 {
+                continue;
+            }
+            let (ix, iy, iz) = (c % nx, (c / nx) % ny, c / (nx * ny));
+            // The centre of cell c.
+            let q = [
+                self.origin[0] + (ix as f64 + 0.5) / self.inv_h,
+                self.origin[1] + (iy as f64 + 0.5) / self.inv_h,
+                self.origin[2] + (iz as f64 + 0.5) / self.inv_h,
+            ];
+            let (r, k) = self.block(q);
+            let b: u32 = r[..k].iter().map(|&(lo, hi)| hi - lo).sum();
+            total += cnt as f64 * b as f64;
+        }
+        total / n as f64
+    }
+
+    /// A key shared by exactly the queries whose [`Grid::block`] is the same: the query's
+    /// cell, extended by one cell of margin on every side; `u64::MAX` for queries with no
+    /// cell within reach (their block is empty). Sorting queries by key groups them so that
+    /// one gather of the block serves the whole group.
+    #[inline(always)]
+    pub fn key(&self, q: [f64; 3]) -> u64 {
+        let mut c = [0u64; 3];
+        for a in 0..3 {
+            let v = ((q[a] - self.origin[a]) * self.inv_h).floor();
+            if !(v >= -1.0 && v <= self.dims[a] as f64) {
+                return u64::MAX;
+            }
+            c[a] = (v + 1.0) as u64;
+        }
+        let (nx, ny) = (self.dims[0] as u64 + 2, self.dims[1] as u64 + 2);
+        (c[2] * ny + c[1]) * nx + c[0]
+    }
+
     /// Call `f(lo, hi)` for each range of [`Grid::block`].
     #[inline(always)]
     pub fn ranges(&self, q: [f64; 3], mut f: impl FnMut(usize, usize)) {
@@ -236,6 +282,33 @@ mod tests {
                 .collect();
             assert_eq!(found, brute);
         }
+    }
+
+    #[test]
+    fn equal_keys_mean_equal_blocks() {
+        let pts: Vec<f64> = (0..600)
+            .map(|i| ((i * 7919 % 1000) as f64 / 1000.0) * if i % 3 == 2 { 0.3 } else { 1.0 })
+            .collect();
+        let g = Grid::new(&pts, 0.1);
+        let mut seen = std::collections::HashMap::new();
+        for i in 0..3000 {
+            let q = [
+                -0.25 + 1.5 * ((i * 31 % 997) as f64 / 997.0),
+                -0.25 + 1.5 * ((i * 17 % 991) as f64 / 991.0),
+                -0.25 + 0.8 * ((i * 13 % 983) as f64 / 983.0),
+            ];
+            let (r, n) = g.block(q);
+            let k = g.key(q);
+            if k == u64::MAX {
+                assert_eq!(n, 0);
+                continue;
+            }
+            let b = r[..n].to_vec();
+            if let Some(prev) = seen.insert(k, b.clone()) {
+                assert_eq!(prev, b, "same key, different block");
+            }
+        }
+        assert!(seen.len() > 50);
     }
 
     #[test]
