@@ -94,11 +94,6 @@ impl Grid {
         self.dims[0] * self.dims[1] * self.dims[2]
     }
 
-    /// Number of non-empty cells.
-    pub fn n_occupied(&self) -> usize {
-        self.start.windows(2).filter(|w| w[1] > w[0]).count()
-    }
-
     /// The side of a cell (at least the `h` asked for).
     pub fn cell_size(&self) -> f64 {
         1.0 / self.inv_h
@@ -282,6 +277,28 @@ mod tests {
                 .collect();
             assert_eq!(found, brute);
         }
+    }
+
+    #[test]
+    fn mean_block_is_the_average_block_of_the_points() {
+        let pts: Vec<f64> = (0..900)
+            .map(|i| ((i * 7919 % 1009) as f64 / 1009.0))
+            .collect();
+        let g = Grid::new(&pts, 0.15);
+        let brute: f64 = pts
+            .chunks_exact(3)
+            .map(|p| {
+                let (r, n) = g.block([p[0], p[1], p[2]]);
+                r[..n].iter().map(|&(lo, hi)| (hi - lo) as f64).sum::<f64>()
+            })
+            .sum::<f64>()
+            / 300.0;
+        assert!(
+            (g.mean_block() - brute).abs() < 1e-9,
+            "{} {}",
+            g.mean_block(),
+            brute
+        );
     }
 
     #[test]
