@@ -282,7 +282,7 @@ mod tests {
     #[test]
     fn mean_block_is_the_average_block_of_the_points() {
         let pts: Vec<f64> = (0..900)
-            .map(|i| ((i * 7919 % 1009) as f64 / 1009.0))
+            .map(|i| (i * 7919 % 1009) as f64 / 1009.0)
             .collect();
         let g = Grid::new(&pts, 0.15);
         let brute: f64 = pts

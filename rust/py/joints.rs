@@ -124,6 +124,70 @@ fn lbs_fit_weights<'py>(
     Ok((idx, to_array2(py, w, k)?, PyArray1::from_vec(py, res)))
 }
 
+/// The arrays both bone sweeps take, converted and shape-checked once (borrowed from the
+/// caller's numpy arrays; `idx` and `parent` are owned conversions).
+struct SweepInput<'a> {
+    q: &'a [f64],
+    idx: Vec<usize>,
+    w: &'a [f64],
+    k: usize,
+    r: &'a [f64],
+    t: &'a [f64],
+    a: &'a [f64],
+    z: &'a [f64],
+    r_pre: &'a [f64],
+    parent: Vec<i64>,
+    joints: &'a [f64],
+    d: Dims,
+}
+
+impl<'a> SweepInput<'a> {
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        py: Python<'_>,
+        q: &'a PyReadonlyArray2<'_, f64>,
+        idx: &'a PyReadonlyArray2<'_, i64>,
+        w: &'a PyReadonlyArray2<'_, f64>,
+        r: &'a PyReadonlyArray2<'_, f64>,
+        t: &'a PyReadonlyArray2<'_, f64>,
+        a: &'a PyReadonlyArray2<'_, f64>,
+        z: &'a PyReadonlyArray2<'_, f64>,
+        r_pre: &'a PyReadonlyArray2<'_, f64>,
+        bone_parent: &'a PyReadonlyArray1<'_, i64>,
+        joints: &'a PyReadonlyArray2<'_, f64>,
+        n_frames: usize,
+    ) -> PyResult<Self> {
+        let q = points(py, q, "rest_points")?;
+        let (idx, k) = indices(idx, "idx")?;
+        let w = flat2(py, w, "w", k)?;
+        let r = flat2(py, r, "R", 9)?;
+        let t = points(py, t, "T")?;
+        let d = dims(q, r, t, n_frames)?;
+        Ok(SweepInput {
+            q,
+            idx,
+            w,
+            k,
+            r,
+            t,
+            a: flat2(py, a, "a", d.m)?,
+            z: points(py, z, "z")?,
+            r_pre: flat2(py, r_pre, "R_pre", 9)?,
+            parent: parents(bone_parent)?,
+            joints: points(py, joints, "joints")?,
+            d,
+        })
+    }
+
+    fn weights(&self) -> SparseWeights<'_> {
+        SparseWeights {
+            idx: &self.idx,
+            w: self.w,
+            k: self.k,
+        }
+    }
+}
+
 /// The paper's bone update (Eqs. 23-26) in every frame: returns new `(R, T)`.
 #[pyfunction]
 #[allow(clippy::too_many_arguments, clippy::type_complexity)]
@@ -144,26 +208,40 @@ fn lbs_sweep_paper<'py>(
     gamma: f64,
     n_frames: usize,
 ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>)> {
-    let q = points(py, &q, "rest_points")?;
-    let (idx, k) = indices(&idx, "idx")?;
-    let w = flat2(py, &w, "w", k)?;
-    let r = flat2(py, &r, "R", 9)?;
-    let t = points(py, &t, "T")?;
-    let d = dims(q, r, t, n_frames)?;
-    let a = flat2(py, &a, "a", d.m)?;
-    let z = points(py, &z, "z")?;
-    let r_pre = flat2(py, &r_pre, "R_pre", 9)?;
+    let s = SweepInput::new(
+        py,
+        &q,
+        &idx,
+        &w,
+        &r,
+        &t,
+        &a,
+        &z,
+        &r_pre,
+        &bone_parent,
+        &joints,
+        n_frames,
+    )?;
     let t_pre = points(py, &t_pre, "T_pre")?;
-    let parent = parents(&bone_parent)?;
-    let joints = points(py, &joints, "joints")?;
     if !alpha.is_finite() || !gamma.is_finite() {
         return Err(PyValueError::new_err("alpha and gamma must be finite"));
     }
-    let sw = SparseWeights { idx: &idx, w, k };
-    let (mut rr, mut tt) = (r.to_vec(), t.to_vec());
+    let (mut rr, mut tt) = (s.r.to_vec(), s.t.to_vec());
     py.detach(|| {
         lbs::sweep_paper(
-            q, sw, &mut rr, &mut tt, a, z, r_pre, t_pre, &parent, joints, alpha, gamma, d,
+            s.q,
+            s.weights(),
+            &mut rr,
+            &mut tt,
+            s.a,
+            s.z,
+            s.r_pre,
+            t_pre,
+            &s.parent,
+            s.joints,
+            alpha,
+            gamma,
+            s.d,
         )
     })
     .map_err(|e| to_pyerr(py, e))?;
@@ -188,25 +266,37 @@ fn lbs_sweep_articulated<'py>(
     gamma: f64,
     n_frames: usize,
 ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>)> {
-    let q = points(py, &q, "rest_points")?;
-    let (idx, k) = indices(&idx, "idx")?;
-    let w = flat2(py, &w, "w", k)?;
-    let r = flat2(py, &r, "R", 9)?;
-    let t = points(py, &t, "T")?;
-    let d = dims(q, r, t, n_frames)?;
-    let a = flat2(py, &a, "a", d.m)?;
-    let z = points(py, &z, "z")?;
-    let r_pre = flat2(py, &r_pre, "R_pre", 9)?;
-    let parent = parents(&bone_parent)?;
-    let joints = points(py, &joints, "joints")?;
+    let s = SweepInput::new(
+        py,
+        &q,
+        &idx,
+        &w,
+        &r,
+        &t,
+        &a,
+        &z,
+        &r_pre,
+        &bone_parent,
+        &joints,
+        n_frames,
+    )?;
     if !gamma.is_finite() {
         return Err(PyValueError::new_err("gamma must be finite"));
     }
-    let sw = SparseWeights { idx: &idx, w, k };
-    let (mut rr, mut tt) = (r.to_vec(), t.to_vec());
+    let (mut rr, mut tt) = (s.r.to_vec(), s.t.to_vec());
     py.detach(|| {
         lbs::sweep_articulated(
-            q, sw, &mut rr, &mut tt, a, z, r_pre, &parent, joints, gamma, d,
+            s.q,
+            s.weights(),
+            &mut rr,
+            &mut tt,
+            s.a,
+            s.z,
+            s.r_pre,
+            &s.parent,
+            s.joints,
+            gamma,
+            s.d,
         )
     })
     .map_err(|e| to_pyerr(py, e))?;
