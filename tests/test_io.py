@@ -258,3 +258,17 @@ def test_writes_are_atomic(tmp_path, rng, monkeypatch):
         write_npz(target, a=np.zeros(3))
     assert target.read_bytes() == b"old"
     assert [p.name for p in tmp_path.iterdir()] == ["out.npz"]
+
+
+def test_outputs_get_the_umask_permissions_not_owner_only(tmp_path):
+    import os
+    import stat
+
+    from pointrig.io.atomic import write_json
+
+    old = os.umask(0o022)
+    try:
+        write_json(tmp_path / "a.json", {"x": 1})
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE((tmp_path / "a.json").stat().st_mode) == 0o644
