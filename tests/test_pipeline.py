@@ -25,7 +25,7 @@ def demo_run(tmp_path_factory):
 
 def test_outputs_exist_and_follow_contract(demo_run):
     for name in ("skeleton.json", "weights.npz", "registration.npz", "skeleton.png",
-                 "skeleton.gif", "skeleton.bvh"):
+                 "skeleton.gif", "skeleton.bvh", "skeleton.glb"):
         assert (demo_run / name).stat().st_size > 0, name
     doc = json.loads((demo_run / "skeleton.json").read_text())
     assert doc["format"] == SKELETON_FORMAT and doc["units"] == "m"

@@ -7,7 +7,9 @@ writes the outputs atomically:
 - ``skeleton.json``  the ``pointrig.skeleton/1`` contract (see the README);
 - ``weights.npz``    rest points, skinning weights ``(M, B)``, labels, bone transforms;
 - ``registration.npz``  the step-1 checkpoint;
-- ``skeleton.bvh``   the animated skeleton for Blender and game engines;
+- ``skeleton.bvh``   the animated skeleton as motion capture (Blender, MotionBuilder);
+- ``skeleton.glb``   glTF 2.0: joints, skin, the rest points as a skinned point mesh and the
+  animation (Blender, Godot, Unity, three.js), see :func:`pointrig.export.write_gltf`;
 - ``skeleton.png``, ``skeleton.gif``  pictures (optional).
 """
 
@@ -23,7 +25,7 @@ from typing import Any, Literal
 import numpy as np
 
 from .config import PipelineConfig
-from .export import write_bvh
+from .export import write_bvh, write_gltf
 from .kinematics import joint_trajectories
 from .sequence import PointSequence
 from .skeleton import Skeleton
@@ -192,9 +194,11 @@ def extract(
         skel.save_json(out / "skeleton.json", source=source, params=params)
         skel.save_weights(out / "weights.npz")
         write_bvh(out / "skeleton.bvh", skel)
+        write_gltf(out / "skeleton.glb", skel)
         result.files["skeleton"] = out / "skeleton.json"
         result.files["weights"] = out / "weights.npz"
         result.files["bvh"] = out / "skeleton.bvh"
+        result.files["gltf"] = out / "skeleton.glb"
         if pictures:
             _write_pictures(out, seq, reg, skel)
             result.files["png"] = out / "skeleton.png"
