@@ -259,11 +259,17 @@ fn exp_row<T: Real>(
     for (o, &d) in e.iter_mut().zip(d2.iter()) {
         *o = T::exp_neg(T::ZERO - d * inv2s);
     }
+    lane_sums(e, d2)
+}
+
+/// `(sum_k e_k, sum_k e_k d2_k)` in `LANES` independent accumulators (so that the loop
+/// vectorises), reduced in float64.
+#[inline(always)]
+fn lane_sums<T: Real>(e: &[T], d2: &[T]) -> (f64, f64) {
     let mut s = [T::ZERO; LANES];
     let mut w = [T::ZERO; LANES];
-    let full = m / LANES * LANES;
-    let (ec, _) = e[..full].as_chunks::<LANES>();
-    let (dc, _) = d2[..full].as_chunks::<LANES>();
+    let (ec, er) = e.as_chunks::<LANES>();
+    let (dc, dr) = d2.as_chunks::<LANES>();
     for (ex, dd) in ec.iter().zip(dc) {
         for l in 0..LANES {
             s[l] = s[l] + ex[l];
@@ -276,11 +282,41 @@ fn exp_row<T: Real>(
         ss += s[l].to_f64();
         ww += w[l].to_f64();
     }
-    for k in full..m {
-        ss += e[k].to_f64();
-        ww += (e[k] * d2[k]).to_f64();
+    for (&ek, &dk) in er.iter().zip(dr) {
+        ss += ek.to_f64();
+        ww += (ek * dk).to_f64();
     }
     (ss, ww)
+}
+
+/// Add the posteriors of a block of `BLOCK` data points, `a_b = e_b * inv_b`, to the
+/// per-template accumulators: `p1 += sum_b a_b`, `p{x,y,z} += sum_b a_b q_b`.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn accumulate_block<T: Real>(
+    e: [&[T]; BLOCK],
+    inv: [T; BLOCK],
+    q: [[T; 3]; BLOCK],
+    p1: &mut [T],
+    px: &mut [T],
+    py: &mut [T],
+    pz: &mut [T],
+) {
+    let n = p1.len();
+    let (e0, e1, e2, e3) = (&e[0][..n], &e[1][..n], &e[2][..n], &e[3][..n]);
+    let (px, py, pz) = (&mut px[..n], &mut py[..n], &mut pz[..n]);
+    let (i0v, i1v, i2v, i3v) = (inv[0], inv[1], inv[2], inv[3]);
+    let (q0, q1, q2, q3) = (q[0], q[1], q[2], q[3]);
+    for k in 0..n {
+        let a0 = e0[k] * i0v;
+        let a1 = e1[k] * i1v;
+        let a2 = e2[k] * i2v;
+        let a3 = e3[k] * i3v;
+        p1[k] = p1[k] + ((a0 + a1) + (a2 + a3));
+        px[k] = px[k] + ((a0 * q0[0] + a1 * q1[0]) + (a2 * q2[0] + a3 * q3[0]));
+        py[k] = py[k] + ((a0 * q0[1] + a1 * q1[1]) + (a2 * q2[1] + a3 * q3[1]));
+        pz[k] = pz[k] + ((a0 * q0[2] + a1 * q1[2]) + (a2 * q2[2] + a3 * q3[2]));
+    }
 }
 
 /// Dense E-step over data points `xs` (centred, flat f64) with global index offset.
@@ -327,25 +363,15 @@ fn dense_chunk<T: Real>(
         let (e0, rest) = e.split_at(m);
         let (e1, rest) = rest.split_at(m);
         let (e2, e3) = rest.split_at(m);
-        let (i0v, i1v, i2v, i3v) = (inv[0], inv[1], inv[2], inv[3]);
-        let (q0, q1, q2, q3) = (q[0], q[1], q[2], q[3]);
-        let e1 = &e1[..m];
-        let e2 = &e2[..m];
-        let e3 = &e3[..m];
-        let p1 = &mut part.p1[..m];
-        let px = &mut part.px[..m];
-        let py = &mut part.py[..m];
-        let pz = &mut part.pz[..m];
-        for k in 0..m {
-            let a0 = e0[k] * i0v;
-            let a1 = e1[k] * i1v;
-            let a2 = e2[k] * i2v;
-            let a3 = e3[k] * i3v;
-            p1[k] = p1[k] + ((a0 + a1) + (a2 + a3));
-            px[k] = px[k] + ((a0 * q0[0] + a1 * q1[0]) + (a2 * q2[0] + a3 * q3[0]));
-            py[k] = py[k] + ((a0 * q0[1] + a1 * q1[1]) + (a2 * q2[1] + a3 * q3[1]));
-            pz[k] = pz[k] + ((a0 * q0[2] + a1 * q1[2]) + (a2 * q2[2] + a3 * q3[2]));
-        }
+        accumulate_block(
+            [e0, e1, e2, e3],
+            inv,
+            q,
+            &mut part.p1[..m],
+            &mut part.px[..m],
+            &mut part.py[..m],
+            &mut part.pz[..m],
+        );
         part.n_pairs += (nb * m) as u64;
         i0 += nb;
     }
@@ -449,26 +475,7 @@ impl<T: Real> Gather<T> {
             kept += keep as usize;
             *o = if keep { v } else { T::ZERO };
         }
-        let mut s = [T::ZERO; LANES];
-        let mut w = [T::ZERO; LANES];
-        let (ec, er) = e.as_chunks::<LANES>();
-        let (dc, dr) = d2.as_chunks::<LANES>();
-        for (ex, dd) in ec.iter().zip(dc) {
-            for l in 0..LANES {
-                s[l] = s[l] + ex[l];
-                w[l] = ex[l].fma(dd[l], w[l]);
-            }
-        }
-        let mut ss = 0.0;
-        let mut ww = 0.0;
-        for l in 0..LANES {
-            ss += s[l].to_f64();
-            ww += w[l].to_f64();
-        }
-        for (&ek, &dk) in er.iter().zip(dr) {
-            ss += ek.to_f64();
-            ww += (ek * dk).to_f64();
-        }
+        let (ss, ww) = lane_sums(e, d2);
         (ss, ww, kept)
     }
 }
@@ -552,23 +559,15 @@ fn truncated_chunk<T: Real>(
             let (e0, rest) = e.split_at(cap);
             let (e1, rest) = rest.split_at(cap);
             let (e2, e3) = rest.split_at(cap);
-            let (e0, e1, e2, e3) = (&e0[..padded], &e1[..padded], &e2[..padded], &e3[..padded]);
-            let (i0v, i1v, i2v, i3v) = (inv[0], inv[1], inv[2], inv[3]);
-            let (q0, q1, q2, q3) = (q[0], q[1], q[2], q[3]);
-            let p1 = &mut g.p1[..padded];
-            let px = &mut g.px[..padded];
-            let py = &mut g.py[..padded];
-            let pz = &mut g.pz[..padded];
-            for k in 0..padded {
-                let a0 = e0[k] * i0v;
-                let a1 = e1[k] * i1v;
-                let a2 = e2[k] * i2v;
-                let a3 = e3[k] * i3v;
-                p1[k] = p1[k] + ((a0 + a1) + (a2 + a3));
-                px[k] = px[k] + ((a0 * q0[0] + a1 * q1[0]) + (a2 * q2[0] + a3 * q3[0]));
-                py[k] = py[k] + ((a0 * q0[1] + a1 * q1[1]) + (a2 * q2[1] + a3 * q3[1]));
-                pz[k] = pz[k] + ((a0 * q0[2] + a1 * q1[2]) + (a2 * q2[2] + a3 * q3[2]));
-            }
+            accumulate_block(
+                [e0, e1, e2, e3],
+                inv,
+                q,
+                &mut g.p1[..padded],
+                &mut g.px[..padded],
+                &mut g.py[..padded],
+                &mut g.pz[..padded],
+            );
             part.n_pairs += (nb * len) as u64;
             b0 += nb;
         }
