@@ -105,15 +105,9 @@ impl Grid {
     pub fn block(&self, q: [f64; 3]) -> ([(u32, u32); 9], usize) {
         let mut out = [(0u32, 0u32); 9];
         let mut cnt = 0;
-        let mut c = [0i64; 3];
-        for a in 0..3 {
-            let v = ((q[a] - self.origin[a]) * self.inv_h).floor();
-            // Far outside the box: no cell within reach on this axis.
-            if v < -1.0 || v > self.dims[a] as f64 {
-                return (out, 0);
-            }
-            c[a] = v as i64;
-        }
+        let Some(c) = self.query_cell(q) else {
+            return (out, 0);
+        };
         let (nx, ny, nz) = (
             self.dims[0] as i64,
             self.dims[1] as i64,
@@ -172,16 +166,29 @@ impl Grid {
     /// one gather of the block serves the whole group.
     #[inline(always)]
     pub fn key(&self, q: [f64; 3]) -> u64 {
-        let mut c = [0u64; 3];
+        let Some(c) = self.query_cell(q) else {
+            return u64::MAX;
+        };
+        // shift by one cell so that the margin cells -1 are non-negative
+        let c = c.map(|v| (v + 1) as u64);
+        let (nx, ny) = (self.dims[0] as u64 + 2, self.dims[1] as u64 + 2);
+        (c[2] * ny + c[1]) * nx + c[0]
+    }
+
+    /// The cell of a query, `-1..=dims` per axis (one cell of margin around the box), or
+    /// `None` when no cell is within reach (far outside the box, or a NaN coordinate). The one
+    /// place [`Grid::block`] and [`Grid::key`] locate a query, so equal keys mean equal blocks.
+    #[inline(always)]
+    fn query_cell(&self, q: [f64; 3]) -> Option<[i64; 3]> {
+        let mut c = [0i64; 3];
         for a in 0..3 {
             let v = ((q[a] - self.origin[a]) * self.inv_h).floor();
             if !(v >= -1.0 && v <= self.dims[a] as f64) {
-                return u64::MAX;
+                return None;
             }
-            c[a] = (v + 1.0) as u64;
+            c[a] = v as i64;
         }
-        let (nx, ny) = (self.dims[0] as u64 + 2, self.dims[1] as u64 + 2);
-        (c[2] * ny + c[1]) * nx + c[0]
+        Some(c)
     }
 
     /// Call `f(lo, hi)` for each range of [`Grid::block`].
