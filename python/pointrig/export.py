@@ -54,10 +54,8 @@ def write_bvh(path: str | Path, skel: Skeleton, fps: float = 30.0) -> None:
 
     if skel.bone_rotations is None:
         raise ValueError("BVH export needs per-frame bone rotations")
-    parents = skel.parents
+    parents, root = _tree(skel, "BVH")
     J, F = skel.n_joints, skel.n_frames
-    if any(parents[j] >= j for j in range(J)):
-        raise ValueError("joints must be ordered parent before child")
     children: list[list[int]] = [[] for _ in range(J)]
     for j in range(1, J):
         children[parents[j]].append(j)
@@ -86,10 +84,7 @@ def write_bvh(path: str | Path, skel: Skeleton, fps: float = 30.0) -> None:
             lines.append(f"{pad}  }}")
         lines.append(pad + "}")
 
-    roots = [j for j in range(J) if parents[j] < 0]
-    if len(roots) != 1:
-        raise ValueError(f"BVH needs exactly one root joint, found {len(roots)}")
-    emit(roots[0], 0)
+    emit(root, 0)
     lines += ["MOTION", f"Frames: {F}", f"Frame Time: {1.0 / fps:.6f}"]
     W = skel.bone_rotations  # (F, J, 3, 3) world rotation of each joint frame vs rest
     local = W.copy()
@@ -98,14 +93,25 @@ def write_bvh(path: str | Path, skel: Skeleton, fps: float = 30.0) -> None:
             local[:, j] = np.einsum("fji,fjk->fik", W[:, parents[j]], W[:, j])
     eul = Rotation.from_matrix(local.reshape(-1, 3, 3)).as_euler("ZXY", degrees=True)
     eul = eul.reshape(F, J, 3)
-    root = roots[0]
     for t in range(F):
         vals = list(skel.joint_positions[t, root])
-        for j in _dfs(roots[0], children):
+        for j in _dfs(root, children):
             vals += list(eul[t, j])
         lines.append(" ".join(f"{v:.6f}" for v in vals))
     with atomic_path(path) as tmp:
         tmp.write_text("\n".join(lines) + "\n")
+
+
+def _tree(skel: Skeleton, fmt: str) -> tuple[np.ndarray, int]:
+    """``(parents (J,), root)`` after checking what both exporters need: joints ordered
+    parent before child and exactly one root."""
+    parents = np.asarray(skel.parents)
+    if any(parents[j] >= j for j in range(len(parents))):
+        raise ValueError("joints must be ordered parent before child")
+    roots = np.flatnonzero(parents < 0)
+    if len(roots) != 1:
+        raise ValueError(f"{fmt} export needs exactly one root joint, found {len(roots)}")
+    return parents, int(roots[0])
 
 
 def _dfs(root: int, children: list[list[int]]) -> list[int]:
@@ -167,10 +173,8 @@ def write_gltf(path: str | Path, skel: Skeleton, fps: float = 30.0) -> None:
         raise ValueError("glTF export needs per-frame bone rotations and translations")
     if not fps > 0:
         raise ValueError(f"fps must be positive, got {fps}")
-    parents = np.asarray(skel.parents)
+    parents, root = _tree(skel, "glTF")
     J, F = skel.n_joints, skel.n_frames
-    if any(parents[j] >= j for j in range(J)):
-        raise ValueError("joints must be ordered parent before child")
     c = np.asarray(skel.rest_positions, dtype=float)
     R = np.asarray(skel.bone_rotations, dtype=float)
     T = np.asarray(skel.bone_translations, dtype=float)
@@ -209,7 +213,7 @@ def write_gltf(path: str | Path, skel: Skeleton, fps: float = 30.0) -> None:
 
     names = list(skel.joint_names)
     nodes: list[dict] = [{"name": "camera_to_gltf", "rotation": list(CAMERA_TO_GLTF),
-                          "children": [1 + int(np.flatnonzero(parents < 0)[0])]}]
+                          "children": [1 + root]}]
     for j in range(J):
         rest_t = c[j] if parents[j] < 0 else c[j] - c[parents[j]]
         node = {"name": names[j], "translation": [float(v) for v in rest_t]}
@@ -217,9 +221,6 @@ def write_gltf(path: str | Path, skel: Skeleton, fps: float = 30.0) -> None:
         if kids:
             node["children"] = kids
         nodes.append(node)
-    roots = np.flatnonzero(parents < 0)
-    if len(roots) != 1:
-        raise ValueError(f"glTF export needs exactly one root joint, found {len(roots)}")
 
     times = add(np.arange(F, dtype=float) / fps, _FLOAT, "SCALAR", minmax=True)
     samplers, channels = [], []
