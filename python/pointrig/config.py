@@ -80,11 +80,6 @@ class RegistrationConfig:
     sigma2_min: float = 1e-5  # floor of Eq. 12 (guards the collapse), m^2
     sigma2_anneal: float = 0.5  # coarse-to-fine: sigma^2 capped at anneal * previous until sigma2_init (1 = off)
     rigid_iterations: int = 2  # leading EM iterations that do a global weighted-Kabsch step
-    # then segment_iterations EM iterations that move each of n_segments node segments (Voronoi
-    # cells of farthest-point samples of the nodes) as one rigid body (per-segment Kabsch), so a
-    # featureless limb cannot slide along itself at coarse sigma (0 = off)
-    segment_iterations: int = 0
-    n_segments: int = 20
     predict_velocity: float = 1.0  # constant-velocity prediction of node transforms (0 = none)
     cutoff: float = 3.5  # truncated E-step: pairs beyond cutoff * sigma ignored (0 = dense); was 5.0
     single_precision: bool = True  # float32 E-step inner loops (float64 reductions)
@@ -108,7 +103,6 @@ class RegistrationConfig:
             beta_smooth_mode="fixed",
             sigma2_start="fixed",
             rigid_iterations=0,
-            segment_iterations=0,
             predict_velocity=0.0,
             sigma2_anneal=1.0,
         )

@@ -130,11 +130,9 @@ class DeformationGraph:
     pn_idx: np.ndarray
     pn_w: np.ndarray
     edges: np.ndarray
-    segments: np.ndarray | None = None  # (J,) rigid segment per node (segment_iterations)
 
     def native(self) -> Any:
-        return _core.DeformGraph(self.rest, self.nodes, self.pn_idx, self.pn_w, self.edges,
-                                 node_segments=self.segments)
+        return _core.DeformGraph(self.rest, self.nodes, self.pn_idx, self.pn_w, self.edges)
 
 
 def build_graph(rest: np.ndarray, config: RegistrationConfig) -> DeformationGraph:
@@ -174,19 +172,12 @@ def build_graph(rest: np.ndarray, config: RegistrationConfig) -> DeformationGrap
         edges = edges[edges[:, 0] != edges[:, 1]]
     else:
         edges = np.zeros((0, 2), dtype=np.int64)
-    segments = None
-    if config.segment_iterations > 0 and config.n_segments > 1:
-        # Voronoi cells of n_segments farthest-point samples of the nodes: rigid pieces of
-        # roughly equal size for the coarse segment-rigid iterations
-        centres = nodes[farthest_point_sampling(nodes, min(config.n_segments, j), config.seed)]
-        segments = np.ascontiguousarray(cKDTree(centres).query(nodes)[1], dtype=np.int64)
     return DeformationGraph(
         rest,
         nodes,
         np.ascontiguousarray(idx, dtype=np.int64),
         np.ascontiguousarray(w),
         np.ascontiguousarray(edges, dtype=np.int64),
-        segments,
     )
 
 
@@ -271,7 +262,6 @@ def _frame_kwargs(config: RegistrationConfig) -> dict[str, Any]:
         subsample=config.subsample,
         motion_tol=config.motion_tol,
         robust=config.smooth_robust,
-        segment_iters=config.segment_iterations if config.n_segments > 1 else 0,
     )
 
 

@@ -88,8 +88,6 @@ pub struct Graph {
     edges_in: Vec<Vec<usize>>,
     /// Per node (block row), the sorted nodes it couples with (itself included).
     cols: Vec<Vec<usize>>,
-    /// Rigid segment of each node for [`Graph::segment_rigid_step`] (all 0 = one segment).
-    segments: Vec<usize>,
 }
 
 fn v3(s: &[f64], i: usize) -> Vector3<f64> {
@@ -210,21 +208,7 @@ impl Graph {
             edges_out,
             edges_in,
             cols,
-            segments: vec![0; j],
         })
-    }
-
-    /// Assign each node to a rigid segment (`seg`: `(J,)` labels >= 0) for the coarse
-    /// segment-rigid iterations of [`register_frame`] ([`FrameParams::segment_iters`]).
-    pub fn with_segments(mut self, seg: &[i64]) -> CoreResult<Graph> {
-        if seg.len() != self.nodes.len() || seg.iter().any(|&s| s < 0) {
-            return Err(CoreError::InvalidInput(format!(
-                "node segments must be {} labels >= 0",
-                self.nodes.len()
-            )));
-        }
-        self.segments = seg.iter().map(|&s| s as usize).collect();
-        Ok(self)
     }
 
     pub fn n_points(&self) -> usize {
@@ -593,45 +577,6 @@ impl Graph {
         iters
     }
 
-    /// Piecewise-rigid alignment: for each node segment, the weighted Kabsch of the points
-    /// whose dominant node lies in it (deformed template -> E-step targets `Px/P1`), applied
-    /// to the segment's nodes as in [`Graph::rigid_step`]. A segment moves as one rigid body,
-    /// so a featureless part cannot slide along itself while its ends are matched (coarse
-    /// sigma). Segments with fewer than 3 matched points keep their transforms.
-    pub fn segment_rigid_step(&self, st: &mut NodeState, d: &DataTerm) {
-        let n_seg = self.segments.iter().max().map_or(0, |&m| m + 1);
-        let y = self.deform(st);
-        let mut src = vec![Vec::new(); n_seg];
-        let mut dst = vec![Vec::new(); n_seg];
-        let mut wts = vec![Vec::new(); n_seg];
-        for (m, ym) in y.iter().enumerate() {
-            if d.p1[m] <= 1e-12 {
-                continue;
-            }
-            let row = m * self.k..(m + 1) * self.k;
-            let (mut best, mut wb) = (self.pn_idx[row.start], -1.0);
-            for (&nj, &w) in self.pn_idx[row.clone()].iter().zip(&self.pn_w[row]) {
-                if w > wb {
-                    best = nj;
-                    wb = w;
-                }
-            }
-            let s = self.segments[best];
-            src[s].push(*ym);
-            dst[s].push(v3(d.px, m) / d.p1[m]);
-            wts[s].push(d.p1[m]);
-        }
-        let tr: Vec<Option<(Matrix3<f64>, Vector3<f64>)>> = (0..n_seg)
-            .map(|s| (src[s].len() >= 3).then(|| kabsch(&src[s], &dst[s], Some(&wts[s]))))
-            .collect();
-        for j in 0..self.nodes.len() {
-            if let Some((r, t)) = tr[self.segments[j]] {
-                st.r[j] = r * st.r[j];
-                st.t[j] = r * (self.nodes[j] + st.t[j]) + t - self.nodes[j];
-            }
-        }
-    }
-
     /// Rigid (global) alignment of `y'` to the E-step targets by weighted Kabsch, applied to
     /// every node: `R_j <- R R_j`, `T_j <- R (n_j + T_j) + t - n_j`.
     pub fn rigid_step(&self, st: &mut NodeState, d: &DataTerm) {
@@ -688,9 +633,6 @@ pub struct FrameParams {
     pub cutoff: Option<f64>,
     pub precision: Precision,
     pub rigid_iters: usize,
-    /// Iterations after the global rigid ones that run [`Graph::segment_rigid_step`]
-    /// instead of the M-step solver (0 = none).
-    pub segment_iters: usize,
     pub solver: Solver,
     pub damping: f64,
     pub cg_tol: f64,
@@ -813,8 +755,6 @@ pub fn register_frame(
         let pre = st.clone();
         if it < p.rigid_iters {
             g.rigid_step(&mut st, &d);
-        } else if it < p.rigid_iters + p.segment_iters {
-            g.segment_rigid_step(&mut st, &d);
         } else {
             match p.solver {
                 Solver::GaussNewton => {
@@ -846,7 +786,7 @@ pub fn register_frame(
             / yn.len().max(1) as f64)
             .sqrt();
         y_cur = yn;
-        let settled = it >= (p.rigid_iters + p.segment_iters).max(k_coarse)
+        let settled = it >= p.rigid_iters.max(k_coarse)
             && ((p.motion_tol > 0.0 && motion <= p.motion_tol * s2_new.sqrt())
                 || e_prev
                     .is_some_and(|e0| (energy - e0).abs() <= p.tol * energy.abs().max(1e-300)));
@@ -952,65 +892,5 @@ mod tests {
         g.gauss_newton_step(&mut st2, &d, &w, 0.0, 1e-10, 500);
         let e1 = g.energy(&st2, &pre, &d, &w);
         assert!(e1 < e0);
-    }
-
-    #[test]
-    fn segment_rigid_step_moves_each_segment_rigidly_onto_its_targets() {
-        use nalgebra::Rotation3;
-        let (g, rest) = toy();
-        let m = g.n_points();
-        // dominant node of a point = its first (ties keep the first): nodes 0-2 -> segment 0
-        let seg_of = |i: usize| usize::from(g.pn_idx[i * g.k] >= 3);
-        let tr = [
-            (
-                Rotation3::from_euler_angles(0.3, -0.2, 0.5).into_inner(),
-                Vector3::new(0.1, -0.05, 0.02),
-            ),
-            (
-                Rotation3::from_euler_angles(-0.4, 0.6, 0.1).into_inner(),
-                Vector3::new(-0.03, 0.2, 0.07),
-            ),
-        ];
-        let p1: Vec<f64> = (0..m)
-            .map(|i| 0.3 + 0.2 * (i as f64 * 0.9).cos().abs())
-            .collect();
-        let mut px = vec![0.0; 3 * m];
-        for i in 0..m {
-            let (r, t) = tr[seg_of(i)];
-            let y = (r * v3(&rest, i) + t) * p1[i];
-            px[3 * i..3 * i + 3].copy_from_slice(y.as_slice());
-        }
-        let d = DataTerm {
-            p1: &p1,
-            px: &px,
-            sum_x2: 1.0,
-            n_p: p1.iter().sum(),
-            sigma2: 1e-3,
-        };
-        let g2 = g.clone().with_segments(&[0, 0, 0, 1, 1, 1]).unwrap();
-        let mut st = NodeState::identity(g2.n_nodes());
-        g2.segment_rigid_step(&mut st, &d);
-        let y = g2.deform(&st);
-        let mut checked = 0;
-        for i in 0..m {
-            let a = g2.pn_idx[i * g2.k];
-            let b = g2.pn_idx[i * g2.k + 1];
-            if g2.segments[a] == g2.segments[b] {
-                let target = v3(&px, i) / p1[i];
-                assert!((y[i] - target).norm() < 1e-9, "point {i}");
-                checked += 1;
-            }
-        }
-        assert!(checked > m / 2);
-        // a single segment is the global rigid step
-        let mut s1 = NodeState::identity(g.n_nodes());
-        let mut s2 = NodeState::identity(g.n_nodes());
-        g.segment_rigid_step(&mut s1, &d);
-        g.rigid_step(&mut s2, &d);
-        for j in 0..g.n_nodes() {
-            assert!((s1.r[j] - s2.r[j]).norm() < 1e-12 && (s1.t[j] - s2.t[j]).norm() < 1e-12);
-        }
-        assert!(g.clone().with_segments(&[0, 1]).is_err());
-        assert!(g.clone().with_segments(&[0, 0, 0, -1, 1, 1]).is_err());
     }
 }

@@ -77,7 +77,6 @@ struct DeformGraph {
 #[pymethods]
 impl DeformGraph {
     #[new]
-    #[pyo3(signature = (rest, nodes, pn_idx, pn_w, edges, node_segments=None))]
     fn new(
         py: Python<'_>,
         rest: PyReadonlyArray2<'_, f64>,
@@ -85,7 +84,6 @@ impl DeformGraph {
         pn_idx: PyReadonlyArray2<'_, i64>,
         pn_w: PyReadonlyArray2<'_, f64>,
         edges: PyReadonlyArray2<'_, i64>,
-        node_segments: Option<PyReadonlyArray1<'_, i64>>,
     ) -> PyResult<Self> {
         let r = points(py, &rest, "rest")?;
         let n = points(py, &nodes, "nodes")?;
@@ -96,12 +94,7 @@ impl DeformGraph {
             return Err(PyValueError::new_err("edges must have shape (E, 2)"));
         }
         let e = edges.c_slice("edges")?;
-        let mut g = Graph::new(r, n, idx, w, k, e).map_err(|e| to_pyerr(py, e))?;
-        if let Some(seg) = node_segments {
-            g = g
-                .with_segments(seg.c_slice("node_segments")?)
-                .map_err(|e| to_pyerr(py, e))?;
-        }
+        let g = Graph::new(r, n, idx, w, k, e).map_err(|e| to_pyerr(py, e))?;
         Ok(DeformGraph { g })
     }
 
@@ -277,7 +270,7 @@ impl DeformGraph {
     #[allow(clippy::too_many_arguments)]
     #[pyo3(signature = (x, r, t, *, sigma2_start, omega, beta_smooth, beta_relative, beta_small,
         sigma2_min, anneal, anneal_floor, max_iter, tol, cutoff, single, rigid_iters, solver, damping, cg_tol, cg_max,
-        subsample=0.0, motion_tol=0.0, voxel_min=0.0, robust=0.0, segment_iters=0))]
+        subsample=0.0, motion_tol=0.0, voxel_min=0.0, robust=0.0))]
     fn register_frame<'py>(
         &self,
         py: Python<'py>,
@@ -305,7 +298,6 @@ impl DeformGraph {
         motion_tol: f64,
         voxel_min: f64,
         robust: f64,
-        segment_iters: usize,
     ) -> PyResult<Bound<'py, PyDict>> {
         let xs = points(py, &x, "x")?;
         let st = read_state(py, &r, &t, self.g.n_nodes())?;
@@ -336,7 +328,6 @@ impl DeformGraph {
                 Precision::Double
             },
             rigid_iters,
-            segment_iters,
             solver,
             damping,
             cg_tol,
