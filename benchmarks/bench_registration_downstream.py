@@ -34,6 +34,16 @@ FIGURES = ["human", "upper_body", "arm", "hand", "quadruped", "snake"] + [
 ]
 
 
+def score_step2(rest: np.ndarray, points: np.ndarray, syn, config):
+    """Step 2 on ``rest (M, 3)`` / ``points (F, M, 3)`` scored against ``syn``'s ground truth;
+    returns ``(EvalReport, StructureResult)``."""
+    st = extract_structure(rest, points, config)
+    sk = build_skeleton(rest, st.bone_parent, st.joints_rest, st.R, st.T, None, st.labels)
+    r = evaluate(sk.joint_positions, syn.gt_joints, syn.joint_parents, skinned=syn.skinned,
+                 surface=syn.surface, surface_labels=syn.surface_labels)
+    return r, st
+
+
 def main(argv: list[str]) -> int:
     variants = [json.loads(a) for a in argv] or [{}]
     cfg = PipelineConfig()
@@ -48,12 +58,7 @@ def main(argv: list[str]) -> int:
             ms = 1000 * (time.perf_counter() - t0) / seq.n_frames
             nn = cKDTree(syn.surface[0]).query(reg.rest_points)[1]
             corr = 100 * float(np.linalg.norm(reg.points - syn.surface[:, nn], axis=2).mean())
-            st = extract_structure(reg.rest_points, reg.points, cfg.structure)
-            sk = build_skeleton(reg.rest_points, st.bone_parent, st.joints_rest, st.R, st.T,
-                                None, st.labels)
-            r = evaluate(sk.joint_positions, syn.gt_joints, syn.joint_parents,
-                         skinned=syn.skinned, surface=syn.surface,
-                         surface_labels=syn.surface_labels)
+            r, st = score_step2(reg.rest_points, reg.points, syn, cfg.structure)
             n_gt = syn.gt_joints.shape[1]
             rows[json.dumps(v)].append((r.recall, r.precision, 100 * r.normalized_error,
                                         len(st.bone_parent) / n_gt, corr, ms))

@@ -30,13 +30,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_registration_downstream import FIGURES  # noqa: E402
+from bench_registration_downstream import FIGURES, score_step2  # noqa: E402
 
 from pointrig.config import PipelineConfig, StructureConfig  # noqa: E402
-from pointrig.evaluate import evaluate  # noqa: E402
-from pointrig.pipeline import build_skeleton  # noqa: E402
 from pointrig.registration import register_sequence  # noqa: E402
-from pointrig.structure import extract_structure  # noqa: E402
 from pointrig.synth import NoiseConfig, synthesize  # noqa: E402
 
 
@@ -73,12 +70,7 @@ def main(argv: list[str]) -> int:
         for v in variants:
             cfg = dataclasses.replace(StructureConfig(), **v)
             for mode, (q, y) in inputs.items():
-                st = extract_structure(q, np.ascontiguousarray(y), cfg)
-                sk = build_skeleton(q, st.bone_parent, st.joints_rest, st.R, st.T, None,
-                                    st.labels)
-                r = evaluate(sk.joint_positions, syn.gt_joints, syn.joint_parents,
-                             skinned=syn.skinned, surface=syn.surface,
-                             surface_labels=syn.surface_labels)
+                r, st = score_step2(q, np.ascontiguousarray(y), syn, cfg)
                 rows.setdefault((json.dumps(v), mode), []).append(
                     (r.recall, r.precision, 100 * r.normalized_error,
                      st.n_bones / max(r.n_scorable, 1)))
