@@ -58,7 +58,7 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--frames", type=int, default=40)
     ap.add_argument("--cache", type=Path, default=None, help="directory for registrations")
     a = ap.parse_args(argv)
-    variants = [json.loads(v) for v in a.variants] or [{}]
+    variants = [json.loads(v) for v in a.variants]
     rows: dict[tuple[str, str], list[tuple[float, ...]]] = {}
     for fig in FIGURES:
         d = _load(fig, a.frames, a.cache)
