@@ -188,6 +188,16 @@ class StructureConfig:
     root_choice: str = "largest"  # root bone: "centroid" = centre nearest the rest-pose
     #   centroid (§5.3), "largest" = the bone with the most points
 
+    # --- single-view depth correction (our deviation, docs/structure.md) ---
+    # one depth view sees only the near side of each part, so boundary centroids c~ (and the
+    # root's centre) lie in front of the joint: move each back along the camera ray to this
+    # quantile of its points' depths (silhouette points reach the part's axis depth); 0 = off
+    view_depth_quantile: float = 0.97
+    camera_position: tuple[float, float, float] = (0.0, 0.0, 0.0)  # in the input frame, metres
+    # "auto": correct only if the rest points form one surface layer along the camera's rays
+    # (pointrig.view.is_single_view); "yes" / "no" force it
+    single_view: str = "auto"
+
 
 @dataclass(frozen=True)
 class JointsConfig:

@@ -42,6 +42,7 @@ from . import _core
 from .config import JointsConfig
 from .errors import ConfigError, InputError
 from .kinematics import joint_trajectories, solve_joint_positions
+from .view import view_depth_correct
 
 __all__ = ["JointsResult", "StructureLike", "learn_joints", "e_step", "e_step_numpy",
            "solve_joints_articulated"]
@@ -377,10 +378,14 @@ def solve_joints_articulated(
 
 
 def _weight_crossing_prior(Q: np.ndarray, W: np.ndarray, parent: np.ndarray,
-                           fallback: np.ndarray, min_mass: float = 0.5) -> np.ndarray:
+                           fallback: np.ndarray, min_mass: float = 0.5,
+                           view_camera: np.ndarray | None = None,
+                           view_quantile: float = 0.0) -> np.ndarray:
     """Prior joint targets where the blend weights of each edge cross: the centroid of the rest
-    points weighted by ``w_mk * w_mp`` (child k, parent p), which peaks at ``w = 1/2``.
-    Edges with less than ``min_mass`` total product weight keep ``fallback`` (c~)."""
+    points weighted by ``w_mk * w_mp`` (child k, parent p), which peaks at ``w = 1/2``, moved
+    back along the camera ray (:func:`pointrig.view.view_depth_correct`, weights ``w_mk w_mp``)
+    when ``view_camera`` is given. Edges with less than ``min_mass`` total product weight keep
+    ``fallback`` (c~)."""
     out = fallback.copy()
     for k, p in enumerate(parent):
         if p < 0:
@@ -388,6 +393,9 @@ def _weight_crossing_prior(Q: np.ndarray, W: np.ndarray, parent: np.ndarray,
         rho = W[:, k] * W[:, p]
         if rho.sum() >= min_mass:
             out[k] = rho @ Q / rho.sum()
+            if view_camera is not None:
+                on = rho > 0
+                out[k] = view_depth_correct(Q[on], rho[on], out[k], view_camera, view_quantile)
     return out
 
 
@@ -511,6 +519,9 @@ def learn_joints(
     articulated = cfg.mode == "articulated"
     c_prior = c_tilde.copy()
     c_prior[root] = joints[root]
+    # single-view depth correction chosen by step 2 (pointrig.view), applied to the prior too
+    view_camera = getattr(structure, "view_camera", None)
+    view_quantile = float(getattr(structure, "view_quantile", 0.0))
 
     def skin_all(W_, R_, T_):
         idx, w = _dense_to_sparse(W_, K)
@@ -580,7 +591,8 @@ def learn_joints(
 
         # ---- bones (Eqs. 23-26) and joints (Eq. 20)
         if articulated and cfg.prior_from_weights:
-            c_prior = _weight_crossing_prior(Q, W, parent, c_prior)
+            c_prior = _weight_crossing_prior(Q, W, parent, c_prior, view_camera=view_camera,
+                                             view_quantile=view_quantile)
         if articulated:
             joints, T = solve_joints_articulated(Q, W, R, a, z, parent, c_prior,
                                                  cfg.eta * cfg.joint_prior, T[:, root])

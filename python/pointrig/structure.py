@@ -42,6 +42,7 @@ from .errors import ConfigError, FormatError, InputError
 from .io.atomic import write_npz
 from .kinematics import joint_trajectories, solve_joint_positions
 from .skeleton import Skeleton
+from .view import SINGLE_VIEW_MAX_TWO_LAYER, two_layer_fraction, view_depth_correct
 
 __all__ = [
     "StructureResult",
@@ -88,6 +89,12 @@ class StructureResult:
     diagnostics
         JSON-able dict: initial k, clusters after clustering, merges done, pruned bones,
         bridges, per-bone RMS residual (m), timings (s).
+    view_camera
+        ``(3,)`` camera position (metres) used by the single-view depth correction of ``c~``
+        (:mod:`pointrig.view`), or ``None`` when the correction is off; step 3 applies the same
+        correction to its joint prior.
+    view_quantile
+        The depth quantile of that correction (0 when off).
     """
 
     labels: np.ndarray
@@ -99,6 +106,8 @@ class StructureResult:
     root: int
     rest_points: np.ndarray
     diagnostics: dict[str, Any] = field(default_factory=dict)
+    view_camera: np.ndarray | None = None
+    view_quantile: float = 0.0
 
     @property
     def n_bones(self) -> int:
@@ -113,6 +122,9 @@ class StructureResult:
             joints_rest=self.joints_rest, c_tilde=self.c_tilde, root=np.int64(self.root),
             rest_points=self.rest_points,
             diagnostics=np.array(json.dumps(self.diagnostics, allow_nan=True)),
+            view_camera=(np.full(3, np.nan) if self.view_camera is None
+                         else np.asarray(self.view_camera, dtype=float)),
+            view_quantile=np.float64(self.view_quantile),
         )
 
     @classmethod
@@ -136,6 +148,7 @@ class StructureResult:
                     R=z["R"], T=z["T"], joints_rest=z["joints_rest"], c_tilde=z["c_tilde"],
                     root=int(z["root"]), rest_points=z["rest_points"],
                     diagnostics=json.loads(str(z["diagnostics"])),
+                    **_load_view(z),
                 )
         except (KeyError, ValueError, OSError) as exc:
             raise FormatError(f"{p}: not a pointrig structure result ({exc})") from None
@@ -206,8 +219,18 @@ def _pair_axes(Q: np.ndarray, labels: np.ndarray, pairs: list[tuple[int, int]]) 
 # --------------------------------------------------------------------------------------------
 
 
+def _load_view(z: Any) -> dict[str, Any]:
+    """``view_camera`` / ``view_quantile`` of a saved result (absent in older files: off)."""
+    if "view_camera" not in z or not np.all(np.isfinite(z["view_camera"])):
+        return {"view_camera": None, "view_quantile": 0.0}
+    return {"view_camera": np.asarray(z["view_camera"], dtype=float),
+            "view_quantile": float(z["view_quantile"])}
+
+
 class _Ctx:
     """Per-call constants: data, neighbourhoods, scale."""
+
+    view_camera: np.ndarray | None = None  # set when the single-view depth correction is on
 
     def __init__(self, Q: np.ndarray, Y: np.ndarray, cfg: StructureConfig):
         from scipy.spatial import cKDTree
@@ -532,8 +555,10 @@ def _build_tree(ctx: _Ctx, labels: np.ndarray, B: int, R: np.ndarray, T: np.ndar
 
 
 def _boundary_centroids(ctx: _Ctx, labels: np.ndarray, parent: np.ndarray) -> np.ndarray:
-    """``c~`` (Eq. 20): centroid of the points of bone and parent that neighbour each other;
-    for bridged bones (no shared boundary) the midpoint of the closest pair; root: its centre."""
+    """``c~`` (Eq. 20): centroid of the points of bone and parent that neighbour each other
+    (moved back along the camera ray by :func:`pointrig.view.view_depth_correct` when
+    ``ctx.view_camera`` is set); for bridged bones (no shared boundary) the midpoint of the
+    closest pair; root: its centre."""
     B = len(parent)
     out = np.empty((B, 3))
     nl = np.where(ctx.nbr >= 0, labels[np.maximum(ctx.nbr, 0)], -1)
@@ -547,6 +572,9 @@ def _boundary_centroids(ctx: _Ctx, labels: np.ndarray, parent: np.ndarray) -> np
         sel = on_k | on_p
         if sel.any():
             out[k] = ctx.Q[sel].mean(0)
+            if ctx.view_camera is not None:
+                out[k] = view_depth_correct(ctx.Q[sel], None, out[k], ctx.view_camera,
+                                            ctx.cfg.view_depth_quantile)
         else:
             out[k] = _closest_pair(ctx, labels, k, p)[1]
     return out
@@ -688,6 +716,13 @@ def _check_inputs(rest_points: np.ndarray, points: np.ndarray, cfg: StructureCon
                           "cluster_rounds >= 0")
     if not 0 <= cfg.merge_percentile <= 100:
         raise ConfigError("structure: merge_percentile must be in [0, 100]")
+    if not 0 <= cfg.view_depth_quantile <= 1:
+        raise ConfigError("structure: view_depth_quantile must be in [0, 1]")
+    if cfg.single_view not in ("auto", "yes", "no"):
+        raise ConfigError(f"structure: single_view must be 'auto', 'yes' or 'no', "
+                          f"got {cfg.single_view!r}")
+    if len(cfg.camera_position) != 3 or not np.all(np.isfinite(cfg.camera_position)):
+        raise ConfigError("structure: camera_position must be 3 finite numbers (metres)")
     return Q, Y
 
 
@@ -722,6 +757,7 @@ def extract_structure(rest_points: np.ndarray, points: np.ndarray,
     M = ctx.M
     k = int(min(cfg.n_clusters, M))
     diag: dict[str, Any] = {"n_init": k}
+    view_camera = _view_camera(Q, cfg, diag)
     rng = np.random.default_rng(cfg.seed)
     labels = _kmeans(kmeans_features(Q, Y, cfg), k, cfg.kmeans_iterations, rng)
     labels = _cluster_rounds(ctx, labels, cfg.cluster_rounds)
@@ -765,8 +801,17 @@ def extract_structure(rest_points: np.ndarray, points: np.ndarray,
         c_tilde = _boundary_centroids(ctx, labels, parent)
         joints = solve_joint_positions(R, T, parent, c_tilde, cfg.eta)
 
+    if view_camera is not None:
+        # single-view depth correction of the final c~ only: the refinement's pruning tests
+        # above keep the uncorrected (surface) joints, so the bone count does not depend on it
+        ctx.view_camera = view_camera
+        c_tilde = _boundary_centroids(ctx, labels, parent)
+        joints = solve_joint_positions(R, T, parent, c_tilde, cfg.eta)
     joints = joints.copy()
     joints[root] = root_joint_position(Q, labels, root, joints, parent, cfg.root_end_alignment)
+    if ctx.view_camera is not None:
+        joints[root] = view_depth_correct(Q[labels == root], None, joints[root], ctx.view_camera,
+                                          cfg.view_depth_quantile)
     res_own = _core.cluster_residuals(Q, Y, R, T, np.ascontiguousarray(labels[:, None]))[:, 0]
     rms = [float(np.sqrt(res_own[labels == b].mean() / ctx.F)) for b in range(B)]
     diag.update({
@@ -777,7 +822,22 @@ def extract_structure(rest_points: np.ndarray, points: np.ndarray,
     log.info("structure: k=%d -> %d clusters -> %d bones in %.2fs", k,
              diag["n_after_clustering"], B, diag["time_total_s"])
     return StructureResult(labels=labels, bone_parent=parent, R=R, T=T, joints_rest=joints,
-                           c_tilde=c_tilde, root=root, rest_points=Q, diagnostics=diag)
+                           c_tilde=c_tilde, root=root, rest_points=Q, diagnostics=diag,
+                           view_camera=ctx.view_camera,
+                           view_quantile=cfg.view_depth_quantile if ctx.view_camera is not None
+                           else 0.0)
+
+
+def _view_camera(Q: np.ndarray, cfg: StructureConfig, diag: dict[str, Any]) -> np.ndarray | None:
+    """The camera position if the single-view depth correction applies, else ``None``."""
+    if cfg.view_depth_quantile <= 0 or cfg.single_view == "no":
+        return None
+    cam = np.asarray(cfg.camera_position, dtype=float)
+    if cfg.single_view == "yes":
+        return cam
+    frac = two_layer_fraction(Q, cam)
+    diag["two_layer_fraction"] = round(frac, 4)
+    return cam if frac <= SINGLE_VIEW_MAX_TWO_LAYER else None
 
 
 def root_joint_position(rest_points: np.ndarray, labels: np.ndarray, root: int,

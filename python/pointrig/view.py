@@ -1,0 +1,139 @@
+"""Single-view geometry: a depth camera sees only the near side of every part.
+
+Step 2's boundary centroids ``c~`` (Eq. 20) and step 3's joint prior are averages of *visible*
+rest points, so on single-view data they sit on the near surface, in front of the joint by a
+fraction of the part's thickness. For a part with a convex cross-section, the silhouette points
+(where the surface turns away from the camera) lie at about the depth of the cross-section's
+centre, so the joint's depth along the ray is estimated by a high quantile of the depths of the
+points that define ``c~``; :func:`view_depth_correct` moves ``c~`` back along the ray to it
+(never towards the camera). :func:`two_layer_fraction` tells single-view input (one surface
+layer along every ray from the camera) from two-sided or fused input, where the correction
+must stay off. docs/structure.md ("Single-view depth correction") has the derivation and the
+ablation.
+
+Units: metres. The camera position is in the input frame (the origin for camera-frame clouds).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+__all__ = ["two_layer_fraction", "is_single_view", "view_depth_correct",
+           "SINGLE_VIEW_MAX_TWO_LAYER"]
+
+#: Point sets with more than this fraction of two-layer camera rays are not one depth view
+#: (measured: rest points of single-view sequences 0.04-0.25, two-sided samples 0.41-0.57).
+SINGLE_VIEW_MAX_TWO_LAYER = 1.0 / 3.0
+
+
+def two_layer_fraction(points: np.ndarray, camera: np.ndarray, *, bin_spacings: float = 1.0,
+                       layer_spacings: float = 4.0) -> float:
+    """Fraction of the camera's rays that cross the point set twice or more.
+
+    Rays are binned by a gnomonic projection about the mean viewing direction, with bins
+    ``bin_spacings`` times the median nearest-neighbour spacing (at the median range) wide; a
+    bin holding at least two points is *two-layer* when their ranges differ by more than
+    ``layer_spacings`` spacings.
+
+    Parameters
+    ----------
+    points
+        ``(M, 3)`` points, metres.
+    camera
+        ``(3,)`` camera position, metres, same frame.
+
+    Returns
+    -------
+    float
+        In ``[0, 1]``: about 0 for a single depth view, about 1/2 or more for a closed surface.
+        1.0 when some points are not in front of the camera (no single view can see them all).
+    """
+    P = np.asarray(points, dtype=np.float64) - np.asarray(camera, dtype=np.float64)
+    if len(P) < 8:
+        return 0.0
+    rng_ = np.linalg.norm(P, axis=1)
+    if np.any(rng_ <= 0):
+        return 1.0
+    dirs = P / rng_[:, None]
+    m = dirs.mean(0)
+    m /= np.linalg.norm(m)
+    cos = dirs @ m
+    if np.any(cos <= 0.1):
+        return 1.0
+    e1 = np.cross(m, [1.0, 0.0, 0.0] if abs(m[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(m, e1)
+    uv = np.stack([dirs @ e1, dirs @ e2], 1) / cos[:, None]
+    spacing = float(np.median(cKDTree(P).query(P, k=2)[0][:, 1]))
+    if spacing <= 0:
+        return 0.0
+    cell = bin_spacings * spacing / float(np.median(rng_))
+    keys = np.floor(uv / cell).astype(np.int64)
+    _, inv = np.unique(keys, axis=0, return_inverse=True)
+    inv = inv.ravel()
+    n = np.bincount(inv)
+    lo = np.full(n.size, np.inf)
+    hi = np.full(n.size, -np.inf)
+    np.minimum.at(lo, inv, rng_)
+    np.maximum.at(hi, inv, rng_)
+    multi = n >= 2
+    if not multi.any():
+        return 0.0
+    return float(np.mean(hi[multi] - lo[multi] > layer_spacings * spacing))
+
+
+def is_single_view(points: np.ndarray, camera: np.ndarray,
+                   max_two_layer: float = SINGLE_VIEW_MAX_TWO_LAYER) -> bool:
+    """True if ``points (M, 3)`` look like one depth view from ``camera (3,)`` (metres): at most
+    ``max_two_layer`` of the occupied rays cross two surface layers (:func:`two_layer_fraction`)."""
+    return two_layer_fraction(points, camera) <= max_two_layer
+
+
+def view_depth_correct(points: np.ndarray, weights: np.ndarray | None, centre: np.ndarray,
+                       camera: np.ndarray, quantile: float) -> np.ndarray:
+    """Move ``centre`` away from the camera to the ``quantile`` of its points' depths.
+
+    Depth is measured along the unit ray ``u`` from ``camera`` through ``centre``; the result
+    is ``centre + max(d_q - d_centre, 0) u`` with ``d_q`` the (weighted) ``quantile`` of the
+    points' depths ``(p - camera) . u``. Points of a convex cross-section seen from one side
+    reach back to about its centre's depth at the silhouette, so a high quantile estimates the
+    depth of the part's axis.
+
+    Parameters
+    ----------
+    points
+        ``(n, 3)`` the visible points that define ``centre`` (e.g. a boundary band), metres.
+    weights
+        ``(n,)`` non-negative weights, or ``None`` for equal weights.
+    centre
+        ``(3,)`` the centroid to correct, metres.
+    camera
+        ``(3,)`` camera position, metres.
+    quantile
+        In ``[0, 1]``; 0 returns ``centre`` unchanged.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(3,)`` corrected centre, metres.
+    """
+    c = np.asarray(centre, dtype=np.float64)
+    P = np.asarray(points, dtype=np.float64)
+    if quantile <= 0 or len(P) == 0:
+        return c.copy()
+    cam = np.asarray(camera, dtype=np.float64)
+    u = c - cam
+    n = np.linalg.norm(u)
+    if n <= 0:
+        return c.copy()
+    u /= n
+    d = (P - cam) @ u
+    w = np.ones(len(d)) if weights is None else np.asarray(weights, dtype=np.float64)
+    order = np.argsort(d, kind="stable")
+    cw = np.cumsum(w[order])
+    if cw[-1] <= 0:
+        return c.copy()
+    i = int(np.searchsorted(cw, min(quantile, 1.0) * cw[-1]))
+    dq = float(d[order[min(i, len(d) - 1)]])
+    return c + max(dq - n, 0.0) * u

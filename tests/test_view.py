@@ -1,0 +1,142 @@
+"""Single-view depth correction (pointrig.view) against closed-form geometry."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from pointrig.config import StructureConfig
+from pointrig.structure import StructureResult, extract_structure
+from pointrig.view import (
+    SINGLE_VIEW_MAX_TWO_LAYER,
+    is_single_view,
+    two_layer_fraction,
+    view_depth_correct,
+)
+
+
+def _cylinder(depth: float, radius: float, length: float, n: int, rng, visible_only: bool
+              ) -> np.ndarray:
+    """Surface samples of a cylinder along x whose axis crosses (0, 0, depth); with
+    ``visible_only`` only the half facing a camera at the origin (normals with z < 0)."""
+    theta = rng.uniform(-np.pi, np.pi, n)
+    if visible_only:
+        theta = rng.uniform(-np.pi / 2, np.pi / 2, n)  # angle from the -z direction
+    x = rng.uniform(-length / 2, length / 2, n)
+    return np.stack([x, radius * np.sin(theta), depth - radius * np.cos(theta)], 1)
+
+
+def _sphere_view(depth: float, radius: float, n: int, rng, visible_only: bool) -> np.ndarray:
+    v = rng.normal(size=(n, 3))
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    if visible_only:
+        v[:, 2] = -np.abs(v[:, 2])  # the half facing the camera at the origin
+    return v * radius + np.array([0.0, 0.0, depth])
+
+
+def test_depth_correct_moves_visible_centroid_to_axis_depth():
+    rng = np.random.default_rng(0)
+    depth, r = 2.0, 0.06
+    pts = _cylinder(depth, r, 0.05, 4000, rng, visible_only=True)
+    c = pts.mean(0)
+    # the visible half-ring's centroid is 2r/pi in front of the axis (closed form)
+    assert c[2] == pytest.approx(depth - 2 * r / np.pi, abs=0.1 * r)
+    out = view_depth_correct(pts, None, c, np.zeros(3), 0.97)
+    u = c / np.linalg.norm(c)
+    # moved along the ray only, back to within 0.1 r of the axis depth
+    assert np.linalg.norm(np.cross(out - c, u)) < 1e-12
+    assert abs(out @ u - depth) < 0.1 * r
+    assert abs(pts.mean(0)[2] - depth) > 0.5 * r  # the uncorrected error was much larger
+
+
+def test_depth_correct_never_moves_towards_camera_and_quantile_zero_is_identity():
+    rng = np.random.default_rng(1)
+    pts = _cylinder(1.5, 0.05, 0.05, 500, rng, visible_only=True)
+    behind = pts.mean(0) + np.array([0.0, 0.0, 0.5])  # already behind every point
+    np.testing.assert_array_equal(view_depth_correct(pts, None, behind, np.zeros(3), 0.97),
+                                  behind)
+    c = pts.mean(0)
+    np.testing.assert_array_equal(view_depth_correct(pts, None, c, np.zeros(3), 0.0), c)
+
+
+def test_depth_correct_weighted_quantile_matches_repeated_points():
+    rng = np.random.default_rng(2)
+    pts = rng.normal(size=(40, 3)) * 0.05 + np.array([0.1, -0.2, 2.0])
+    reps = rng.integers(1, 5, size=40)
+    c = pts.mean(0)
+    cam = np.array([0.3, 0.1, -0.5])
+    a = view_depth_correct(pts, reps.astype(float), c, cam, 0.8)
+    b = view_depth_correct(np.repeat(pts, reps, axis=0), None, c, cam, 0.8)
+    np.testing.assert_allclose(a, b, atol=1e-12)
+    # oracle: the depth along the ray equals numpy's inverted-cdf quantile of the depths
+    u = (c - cam) / np.linalg.norm(c - cam)
+    d = (np.repeat(pts, reps, axis=0) - cam) @ u
+    expect = max(np.quantile(d, 0.8, method="inverted_cdf"), (c - cam) @ u)
+    assert (a - cam) @ u == pytest.approx(expect, abs=1e-12)
+
+
+def test_two_layer_fraction_tells_one_view_from_a_closed_surface():
+    rng = np.random.default_rng(3)
+    for make in (lambda vis: _sphere_view(2.5, 0.3, 3000, rng, vis),
+                 lambda vis: _cylinder(2.0, 0.1, 0.8, 3000, rng, vis)):
+        front, both = make(True), make(False)
+        assert two_layer_fraction(front, np.zeros(3)) < SINGLE_VIEW_MAX_TWO_LAYER
+        assert two_layer_fraction(both, np.zeros(3)) > SINGLE_VIEW_MAX_TWO_LAYER
+        assert is_single_view(front, np.zeros(3)) and not is_single_view(both, np.zeros(3))
+    # points behind the camera cannot come from one view through it
+    pts = _sphere_view(0.0, 1.0, 500, rng, False)
+    assert two_layer_fraction(pts, np.zeros(3)) == 1.0
+
+
+def _two_bone_sequence(visible_only: bool, rng) -> tuple[np.ndarray, np.ndarray]:
+    """A cylinder of two 0.4 m bones along x (radius 6 cm, axis depth 2 m) bending at x = 0
+    about the view axis, 12 frames; returns rest points and their motion."""
+    q = _cylinder(2.0, 0.06, 0.8, 3000, rng, visible_only)
+    Y = []
+    for ang in np.linspace(0.0, 0.8, 12):
+        c, s = np.cos(ang), np.sin(ang)
+        R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        y = q.copy()
+        right = q[:, 0] > 0
+        pivot = np.array([0.0, 0.0, 2.0])
+        y[right] = (q[right] - pivot) @ R.T + pivot
+        Y.append(y)
+    return q, np.stack(Y)
+
+
+@pytest.mark.parametrize("visible_only", [True, False])
+def test_structure_applies_the_correction_only_to_single_view_input(visible_only, tmp_path):
+    rng = np.random.default_rng(4)
+    q, Y = _two_bone_sequence(visible_only, rng)
+    cfg = StructureConfig(n_clusters=8)
+    st = extract_structure(q, Y, cfg)
+    assert (st.view_camera is not None) == visible_only
+    off = extract_structure(q, Y, dataclasses.replace(cfg, view_depth_quantile=0.0))
+    assert off.view_camera is None and off.view_quantile == 0.0
+    assert st.n_bones == off.n_bones  # the correction never changes the bone count
+    if visible_only:
+        # the elbow (axis depth 2 m) is found behind the visible surface's centroid
+        k = int(np.flatnonzero(st.bone_parent >= 0)[0])
+        assert abs(st.c_tilde[k, 2] - 2.0) < abs(off.c_tilde[k, 2] - 2.0)
+        assert abs(st.c_tilde[k, 2] - 2.0) < 0.015
+    path = tmp_path / "st.npz"
+    st.save(path)
+    back = StructureResult.load(path)
+    assert back.view_quantile == st.view_quantile
+    if st.view_camera is None:
+        assert back.view_camera is None
+    else:
+        np.testing.assert_array_equal(back.view_camera, st.view_camera)
+
+
+def test_structure_rejects_bad_view_parameters():
+    from pointrig.errors import ConfigError
+
+    rng = np.random.default_rng(5)
+    q, Y = _two_bone_sequence(True, rng)
+    for bad in ({"view_depth_quantile": 1.5}, {"single_view": "maybe"},
+                {"camera_position": (0.0, float("nan"), 0.0)}):
+        with pytest.raises(ConfigError):
+            extract_structure(q, Y, StructureConfig(**bad))
