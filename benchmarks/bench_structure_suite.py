@@ -114,7 +114,9 @@ def main(argv: list[str] | None = None) -> int:
         k, v = kv.split("=", 1)
         kind = type(getattr(StructureConfig(), k))
         over[k] = v if kind is str else kind(float(v) if kind is not bool else v == "true")
-    cfg = dataclasses.replace(StructureConfig(), **over)
+    # syn.surface samples both sides of the subject (not one depth view): no single-view depth
+    # correction of the joints unless asked for
+    cfg = dataclasses.replace(StructureConfig(), **{"single_view": "no", **over})
     if a.timing:
         syn = synthesize("human", n_frames=100, seed=0, camera=_TINY_CAMERA,
                          noise=NoiseConfig.clean(), surface_points=2000)

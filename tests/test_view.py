@@ -11,6 +11,7 @@ from pointrig.config import StructureConfig
 from pointrig.structure import StructureResult, extract_structure
 from pointrig.view import (
     SINGLE_VIEW_MAX_TWO_LAYER,
+    in_view,
     is_single_view,
     two_layer_fraction,
     view_depth_correct,
@@ -107,12 +108,15 @@ def _two_bone_sequence(visible_only: bool, rng) -> tuple[np.ndarray, np.ndarray]
 
 
 @pytest.mark.parametrize("visible_only", [True, False])
-def test_structure_applies_the_correction_only_to_single_view_input(visible_only, tmp_path):
+def test_structure_auto_applies_the_correction_only_to_single_view_input(visible_only, tmp_path):
     rng = np.random.default_rng(4)
     q, Y = _two_bone_sequence(visible_only, rng)
-    cfg = StructureConfig(n_clusters=8)
+    cfg = StructureConfig(n_clusters=8, single_view="auto")
     st = extract_structure(q, Y, cfg)
     assert (st.view_camera is not None) == visible_only
+    forced = extract_structure(q, Y, dataclasses.replace(cfg, single_view="yes"))
+    np.testing.assert_array_equal(forced.view_camera, np.zeros(3))
+    assert forced.view_quantile == cfg.view_depth_quantile
     off = extract_structure(q, Y, dataclasses.replace(cfg, view_depth_quantile=0.0))
     assert off.view_camera is None and off.view_quantile == 0.0
     assert st.n_bones == off.n_bones  # the correction never changes the bone count
@@ -129,6 +133,18 @@ def test_structure_applies_the_correction_only_to_single_view_input(visible_only
         assert back.view_camera is None
     else:
         np.testing.assert_array_equal(back.view_camera, st.view_camera)
+
+
+def test_in_view_and_structure_skip_when_the_camera_is_inside_the_subject():
+    rng = np.random.default_rng(6)
+    front = _sphere_view(2.0, 0.3, 500, rng, True)
+    assert in_view(front, np.zeros(3))
+    assert not in_view(front - front.mean(0), np.zeros(3))  # world frame centred on it
+    assert not in_view(front, np.array([0.0, 0.0, 2.0]))  # camera at the sphere's centre
+    q, Y = _two_bone_sequence(True, rng)
+    st = extract_structure(q - [0.0, 0.0, 2.0], Y - [0.0, 0.0, 2.0],
+                           StructureConfig(n_clusters=8, single_view="yes"))
+    assert st.view_camera is None and "skipped" in st.diagnostics["view_depth"]
 
 
 def test_structure_rejects_bad_view_parameters():

@@ -194,9 +194,10 @@ class StructureConfig:
     # quantile of its points' depths (silhouette points reach the part's axis depth); 0 = off
     view_depth_quantile: float = 0.97
     camera_position: tuple[float, float, float] = (0.0, 0.0, 0.0)  # in the input frame, metres
-    # "auto": correct only if the rest points form one surface layer along the camera's rays
-    # (pointrig.view.is_single_view); "yes" / "no" force it
-    single_view: str = "auto"
+    # "yes" (pointrig's input: one depth camera), "no" (fused or two-sided clouds: keep the
+    # paper's centroids), "auto" (correct only if the rest points form one surface layer along
+    # the camera's rays, pointrig.view.is_single_view; fragile on side views, docs/structure.md)
+    single_view: str = "yes"
 
 
 @dataclass(frozen=True)

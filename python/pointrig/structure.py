@@ -42,7 +42,7 @@ from .errors import ConfigError, FormatError, InputError
 from .io.atomic import write_npz
 from .kinematics import joint_trajectories, solve_joint_positions
 from .skeleton import Skeleton
-from .view import SINGLE_VIEW_MAX_TWO_LAYER, two_layer_fraction, view_depth_correct
+from .view import SINGLE_VIEW_MAX_TWO_LAYER, in_view, two_layer_fraction, view_depth_correct
 
 __all__ = [
     "StructureResult",
@@ -833,6 +833,12 @@ def _view_camera(Q: np.ndarray, cfg: StructureConfig, diag: dict[str, Any]) -> n
     if cfg.view_depth_quantile <= 0 or cfg.single_view == "no":
         return None
     cam = np.asarray(cfg.camera_position, dtype=float)
+    if not in_view(Q, cam):
+        log.warning("single-view depth correction skipped: the rest points surround "
+                    "camera_position %s (clouds in a world frame? set structure.camera_position)",
+                    tuple(cam))
+        diag["view_depth"] = "skipped: rest points not in front of camera_position"
+        return None
     if cfg.single_view == "yes":
         return cam
     frac = two_layer_fraction(Q, cam)

@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["two_layer_fraction", "is_single_view", "view_depth_correct",
+__all__ = ["two_layer_fraction", "is_single_view", "in_view", "view_depth_correct",
            "SINGLE_VIEW_MAX_TWO_LAYER"]
 
 #: Point sets with more than this fraction of two-layer camera rays are not one depth view
@@ -81,6 +81,21 @@ def two_layer_fraction(points: np.ndarray, camera: np.ndarray, *, bin_spacings: 
     if not multi.any():
         return 0.0
     return float(np.mean(hi[multi] - lo[multi] > layer_spacings * spacing))
+
+
+def in_view(points: np.ndarray, camera: np.ndarray, min_cos: float = 0.5) -> bool:
+    """True if every point of ``points (M, 3)`` lies within a cone of half-angle
+    ``arccos(min_cos)`` (default 60 deg) about the mean viewing direction from ``camera (3,)``:
+    the camera can be where the points were seen from (not inside or beside the subject, as
+    when clouds are given in a world frame centred on the subject)."""
+    P = np.asarray(points, dtype=np.float64) - np.asarray(camera, dtype=np.float64)
+    r = np.linalg.norm(P, axis=1)
+    if len(P) == 0 or np.any(r <= 0):
+        return False
+    dirs = P / r[:, None]
+    m = dirs.mean(0)
+    n = np.linalg.norm(m)
+    return bool(n > 0 and np.all(dirs @ (m / n) >= min_cos))
 
 
 def is_single_view(points: np.ndarray, camera: np.ndarray,
