@@ -189,8 +189,8 @@ class StructureConfig:
     #   centroid (§5.3), "largest" = the bone with the most points
 
     # --- single-view depth correction (our deviation, docs/structure.md) ---
-    # one depth view sees only the near side of each part, so boundary centroids c~ (and the
-    # root's centre) lie in front of the joint: move each back along the camera ray to this
+    # one depth view sees only the near side of each part, so boundary centroids c~ lie in
+    # front of the joint: move each (not the root's centre) back along the camera ray to this
     # quantile of its points' depths (silhouette points reach the part's axis depth); 0 = off
     view_depth_quantile: float = 0.97
     camera_position: tuple[float, float, float] = (0.0, 0.0, 0.0)  # in the input frame, metres

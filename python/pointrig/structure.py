@@ -803,15 +803,14 @@ def extract_structure(rest_points: np.ndarray, points: np.ndarray,
 
     if view_camera is not None:
         # single-view depth correction of the final c~ only: the refinement's pruning tests
-        # above keep the uncorrected (surface) joints, so the bone count does not depend on it
+        # above keep the uncorrected (surface) joints, so the bone count does not depend on it.
+        # The root joint is not corrected: the root part can reach far back in depth (a torso
+        # seen side-on), and a quantile of its depths overshot by 20 cm on a 100-frame human
         ctx.view_camera = view_camera
         c_tilde = _boundary_centroids(ctx, labels, parent)
         joints = solve_joint_positions(R, T, parent, c_tilde, cfg.eta)
     joints = joints.copy()
     joints[root] = root_joint_position(Q, labels, root, joints, parent, cfg.root_end_alignment)
-    if ctx.view_camera is not None:
-        joints[root] = view_depth_correct(Q[labels == root], None, joints[root], ctx.view_camera,
-                                          cfg.view_depth_quantile)
     res_own = _core.cluster_residuals(Q, Y, R, T, np.ascontiguousarray(labels[:, None]))[:, 0]
     rms = [float(np.sqrt(res_own[labels == b].mean() / ctx.F)) for b in range(B)]
     diag.update({
