@@ -73,6 +73,7 @@ def main(argv: list[str]) -> int:
         s = syn.surface
         idx = np.random.default_rng(0).choice(s.shape[1], min(2000, s.shape[1]), replace=False)
         inputs = {"exact": (s[0, idx], s[:, idx]), "reg": (d["rest"], d["pts"])}
+        frames = syn.to_point_sequence().frames if a.joints else None
         line = []
         for v in variants:
             for mode, (q, y) in inputs.items():
@@ -85,8 +86,7 @@ def main(argv: list[str]) -> int:
                      st.n_bones / max(r.n_scorable, 1), 100 * r.raw_error))
                 line.append(f"{mode} {r.recall:.2f}/{r.precision:.2f}/{st.n_bones}")
                 if a.joints and mode == "reg":
-                    jr = learn_joints(syn.to_point_sequence().frames, q, y, st,
-                                      PipelineConfig().joints)
+                    jr = learn_joints(frames, q, y, st, PipelineConfig().joints)
                     sk = build_skeleton(q, st.bone_parent, jr.joints_rest, jr.R, jr.T,
                                         jr.weights, None)
                     r3 = evaluate(sk.joint_positions, syn.gt_joints, syn.joint_parents,
