@@ -230,8 +230,6 @@ def _load_view(z: Any) -> dict[str, Any]:
 class _Ctx:
     """Per-call constants: data, neighbourhoods, scale."""
 
-    view_camera: np.ndarray | None = None  # set when the single-view depth correction is on
-
     def __init__(self, Q: np.ndarray, Y: np.ndarray, cfg: StructureConfig):
         from scipy.spatial import cKDTree
 
@@ -554,11 +552,12 @@ def _build_tree(ctx: _Ctx, labels: np.ndarray, B: int, R: np.ndarray, T: np.ndar
     return parent, root, bridges
 
 
-def _boundary_centroids(ctx: _Ctx, labels: np.ndarray, parent: np.ndarray) -> np.ndarray:
+def _boundary_centroids(ctx: _Ctx, labels: np.ndarray, parent: np.ndarray,
+                        view_camera: np.ndarray | None = None) -> np.ndarray:
     """``c~`` (Eq. 20): centroid of the points of bone and parent that neighbour each other
-    (moved back along the camera ray by :func:`pointrig.view.view_depth_correct` when
-    ``ctx.view_camera`` is set); for bridged bones (no shared boundary) the midpoint of the
-    closest pair; root: its centre."""
+    (moved back along the ray from ``view_camera`` by :func:`pointrig.view.view_depth_correct`
+    when given); for bridged bones (no shared boundary) the midpoint of the closest pair; root:
+    its centre."""
     B = len(parent)
     out = np.empty((B, 3))
     nl = np.where(ctx.nbr >= 0, labels[np.maximum(ctx.nbr, 0)], -1)
@@ -572,8 +571,8 @@ def _boundary_centroids(ctx: _Ctx, labels: np.ndarray, parent: np.ndarray) -> np
         sel = on_k | on_p
         if sel.any():
             out[k] = ctx.Q[sel].mean(0)
-            if ctx.view_camera is not None:
-                out[k] = view_depth_correct(ctx.Q[sel], None, out[k], ctx.view_camera,
+            if view_camera is not None:
+                out[k] = view_depth_correct(ctx.Q[sel], None, out[k], view_camera,
                                             ctx.cfg.view_depth_quantile)
         else:
             out[k] = _closest_pair(ctx, labels, k, p)[1]
@@ -806,8 +805,7 @@ def extract_structure(rest_points: np.ndarray, points: np.ndarray,
         # above keep the uncorrected (surface) joints, so the bone count does not depend on it.
         # The root joint is not corrected: the root part can reach far back in depth (a torso
         # seen side-on), and a quantile of its depths overshot by 20 cm on a 100-frame human
-        ctx.view_camera = view_camera
-        c_tilde = _boundary_centroids(ctx, labels, parent)
+        c_tilde = _boundary_centroids(ctx, labels, parent, view_camera)
         joints = solve_joint_positions(R, T, parent, c_tilde, cfg.eta)
     joints = joints.copy()
     joints[root] = root_joint_position(Q, labels, root, joints, parent, cfg.root_end_alignment)
@@ -822,8 +820,8 @@ def extract_structure(rest_points: np.ndarray, points: np.ndarray,
              diag["n_after_clustering"], B, diag["time_total_s"])
     return StructureResult(labels=labels, bone_parent=parent, R=R, T=T, joints_rest=joints,
                            c_tilde=c_tilde, root=root, rest_points=Q, diagnostics=diag,
-                           view_camera=ctx.view_camera,
-                           view_quantile=cfg.view_depth_quantile if ctx.view_camera is not None
+                           view_camera=view_camera,
+                           view_quantile=cfg.view_depth_quantile if view_camera is not None
                            else 0.0)
 
 

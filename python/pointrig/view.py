@@ -27,6 +27,25 @@ __all__ = ["two_layer_fraction", "is_single_view", "in_view", "view_depth_correc
 SINGLE_VIEW_MAX_TWO_LAYER = 1.0 / 3.0
 
 
+def _rays(points: np.ndarray, camera: np.ndarray
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """Rays from ``camera (3,)`` to ``points (M, 3)``: offsets ``(M, 3)``, ranges ``(M,)``,
+    unit directions ``(M, 3)``, the unit mean direction ``(3,)`` and each ray's cosine to it
+    ``(M,)``; ``None`` if there are no points, a point sits on the camera or the directions
+    cancel out."""
+    P = np.asarray(points, dtype=np.float64) - np.asarray(camera, dtype=np.float64)
+    r = np.linalg.norm(P, axis=1)
+    if len(P) == 0 or np.any(r <= 0):
+        return None
+    dirs = P / r[:, None]
+    m = dirs.mean(0)
+    n = np.linalg.norm(m)
+    if n <= 0:
+        return None
+    m /= n
+    return P, r, dirs, m, dirs @ m
+
+
 def two_layer_fraction(points: np.ndarray, camera: np.ndarray, *, bin_spacings: float = 1.0,
                        layer_spacings: float = 4.0) -> float:
     """Fraction of the camera's rays that cross the point set twice or more.
@@ -49,16 +68,12 @@ def two_layer_fraction(points: np.ndarray, camera: np.ndarray, *, bin_spacings: 
         In ``[0, 1]``: about 0 for a single depth view, about 1/2 or more for a closed surface.
         1.0 when some points are not in front of the camera (no single view can see them all).
     """
-    P = np.asarray(points, dtype=np.float64) - np.asarray(camera, dtype=np.float64)
-    if len(P) < 8:
+    if len(points) < 8:
         return 0.0
-    rng_ = np.linalg.norm(P, axis=1)
-    if np.any(rng_ <= 0):
+    rays = _rays(points, camera)
+    if rays is None:
         return 1.0
-    dirs = P / rng_[:, None]
-    m = dirs.mean(0)
-    m /= np.linalg.norm(m)
-    cos = dirs @ m
+    P, rng_, dirs, m, cos = rays
     if np.any(cos <= 0.1):
         return 1.0
     e1 = np.cross(m, [1.0, 0.0, 0.0] if abs(m[0]) < 0.9 else [0.0, 1.0, 0.0])
@@ -88,14 +103,8 @@ def in_view(points: np.ndarray, camera: np.ndarray, min_cos: float = 0.5) -> boo
     ``arccos(min_cos)`` (default 60 deg) about the mean viewing direction from ``camera (3,)``:
     the camera can be where the points were seen from (not inside or beside the subject, as
     when clouds are given in a world frame centred on the subject)."""
-    P = np.asarray(points, dtype=np.float64) - np.asarray(camera, dtype=np.float64)
-    r = np.linalg.norm(P, axis=1)
-    if len(P) == 0 or np.any(r <= 0):
-        return False
-    dirs = P / r[:, None]
-    m = dirs.mean(0)
-    n = np.linalg.norm(m)
-    return bool(n > 0 and np.all(dirs @ (m / n) >= min_cos))
+    rays = _rays(points, camera)
+    return rays is not None and bool(np.all(rays[4] >= min_cos))
 
 
 def is_single_view(points: np.ndarray, camera: np.ndarray,
