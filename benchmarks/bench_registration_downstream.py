@@ -34,14 +34,18 @@ FIGURES = ["human", "upper_body", "arm", "hand", "quadruped", "snake"] + [
 ]
 
 
+def score_joints(joint_positions: np.ndarray, syn):
+    """``EvalReport`` of predicted joints ``(F, J, 3)`` (metres) against ``syn``'s ground truth."""
+    return evaluate(joint_positions, syn.gt_joints, syn.joint_parents, skinned=syn.skinned,
+                    surface=syn.surface, surface_labels=syn.surface_labels)
+
+
 def score_step2(rest: np.ndarray, points: np.ndarray, syn, config):
     """Step 2 on ``rest (M, 3)`` / ``points (F, M, 3)`` scored against ``syn``'s ground truth;
     returns ``(EvalReport, StructureResult)``."""
     st = extract_structure(rest, points, config)
     sk = build_skeleton(rest, st.bone_parent, st.joints_rest, st.R, st.T, None, st.labels)
-    r = evaluate(sk.joint_positions, syn.gt_joints, syn.joint_parents, skinned=syn.skinned,
-                 surface=syn.surface, surface_labels=syn.surface_labels)
-    return r, st
+    return score_joints(sk.joint_positions, syn), st
 
 
 def main(argv: list[str]) -> int:

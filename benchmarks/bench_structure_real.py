@@ -32,10 +32,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_registration_downstream import FIGURES, score_step2  # noqa: E402
+from bench_registration_downstream import FIGURES, score_joints, score_step2  # noqa: E402
 
 from pointrig.config import PipelineConfig, StructureConfig  # noqa: E402
-from pointrig.evaluate import evaluate  # noqa: E402
 from pointrig.joints import learn_joints  # noqa: E402
 from pointrig.pipeline import build_skeleton  # noqa: E402
 from pointrig.registration import register_sequence  # noqa: E402
@@ -89,9 +88,7 @@ def main(argv: list[str]) -> int:
                     jr = learn_joints(frames, q, y, st, PipelineConfig().joints)
                     sk = build_skeleton(q, st.bone_parent, jr.joints_rest, jr.R, jr.T,
                                         jr.weights, None)
-                    r3 = evaluate(sk.joint_positions, syn.gt_joints, syn.joint_parents,
-                                  skinned=syn.skinned, surface=syn.surface,
-                                  surface_labels=syn.surface_labels)
+                    r3 = score_joints(sk.joint_positions, syn)
                     rows.setdefault((json.dumps(v), "reg+3"), []).append(
                         (r3.recall, r3.precision, 100 * r3.normalized_error,
                          st.n_bones / max(r3.n_scorable, 1), 100 * r3.raw_error))
