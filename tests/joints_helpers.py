@@ -37,6 +37,7 @@ class Figure:
     registered: np.ndarray  # (F, M, 3) noisy LBS points (step-1 stand-in)
     frames: list  # F arrays (N_t, 3): single-view noisy observations
     root: int = 0
+    camera: np.ndarray | None = None  # (3,) the camera of a front-only rest surface
 
     @property
     def joints_gt(self) -> np.ndarray:
@@ -53,6 +54,8 @@ class StructureStandin:
     joints_rest: np.ndarray
     c_tilde: np.ndarray
     root: int
+    view_camera: np.ndarray | None = None
+    view_quantile: float = 0.0
 
 
 def _capsule_points(head, tail, radius, n, rng, front_only):
@@ -201,7 +204,8 @@ def make_figure(
         lo, hi = X[f].min(0) - 0.2, X[f].max(0) + 0.2
         obs[:n_out] = rng.uniform(lo, hi, (n_out, 3))
         frames.append(np.ascontiguousarray(obs))
-    return Figure(Q, Nr, labels, W, parent, joints, R, T, registered, frames)
+    return Figure(Q, Nr, labels, W, parent, joints, R, T, registered, frames,
+                  camera=cam.copy() if front_only_rest else None)
 
 
 def boundary_centroids(Q, labels, bone_parent, radius=0.03):
@@ -237,9 +241,17 @@ def step2_standin(fig: Figure, eta: float = 1.0) -> StructureStandin:
         src = np.ascontiguousarray(fig.rest_points[sel])
         for f in range(F):
             R[f, b], T[f, b] = _core.kabsch(src, np.ascontiguousarray(fig.registered[f, sel]))
-    ct = boundary_centroids(fig.rest_points, fig.labels, fig.bone_parent)
+    from pointrig.config import StructureConfig
+    from pointrig.structure import _boundary_centroids, _Ctx
+
+    # step 2's own c~ (boundary band of the vote neighbourhoods, single-view depth correction
+    # with the fixture's camera when the rest surface is one-sided)
+    q = StructureConfig().view_depth_quantile if fig.camera is not None else 0.0
+    ctx = _Ctx(fig.rest_points, fig.registered, StructureConfig())
+    ct = _boundary_centroids(ctx, fig.labels, fig.bone_parent, fig.camera)
     joints = solve_joint_positions(R, T, fig.bone_parent, ct, eta)
-    return StructureStandin(fig.labels.copy(), fig.bone_parent.copy(), R, T, joints, ct, 0)
+    return StructureStandin(fig.labels.copy(), fig.bone_parent.copy(), R, T, joints, ct, 0,
+                            fig.camera, q)
 
 
 def joint_errors(fig: Figure, joints_rest, R, T) -> dict:
