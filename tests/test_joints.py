@@ -159,10 +159,15 @@ def test_noise_free_arm_joints_within_1cm():
 
 
 def test_step3_beats_step2_on_noisy_blended_figure():
+    # An accurate registration (true LBS motion + 3 mm noise): the motion pins the joints, so
+    # with a weak joint prior step 3 halves step 2's error. The default prior (joint_prior=1,
+    # chosen on the real registrations of bench_structure_real, docs/joints.md session 7)
+    # trades this sub-centimetre refinement for robustness to step-1 sliding.
     fig = make_figure("human", n_frames=15, n_points=1000, n_obs=2500, seed=2)
     st = step2_standin(fig)
     before = joint_errors(fig, st.joints_rest, st.R, st.T)
-    res = learn_joints(fig.frames, fig.rest_points, fig.registered, st, JointsConfig())
+    res = learn_joints(fig.frames, fig.rest_points, fig.registered, st,
+                       JointsConfig(joint_prior=0.01))
     after = joint_errors(fig, res.joints_rest, res.R, res.T)
     assert after["traj_mean"] < 0.5 * before["traj_mean"], (before, after)
     assert after["traj_mean"] < 0.015

@@ -223,7 +223,7 @@ class JointsConfig:
     tolerance: float = 1e-5  # ... or when |dE_Total| / |E_Total| (Eq. 21a) falls below this
     # --- deviations from the paper (docs/joints.md); "paper" restores Algorithm 2 exactly ---
     mode: str = "articulated"  # "articulated" (ours) or "paper" (Eqs. 23-26 + Eq. 20)
-    joint_prior: float = 0.01  # articulated mode: weight of eta |c - c~|^2 relative to one
+    joint_prior: float = 1.0  # articulated mode: weight of eta |c - c~|^2 relative to one
     #   frame of data on the joint's subtree (the paper's eta acts against F frames in Eq. 20)
     prior_from_weights: bool = True  # articulated mode: prior target = where the blend weights
     #   of the two bones cross (centroid weighted by w_mk w_mp) instead of c~, once W blends
