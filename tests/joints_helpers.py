@@ -21,7 +21,9 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
+from pointrig.config import StructureConfig
 from pointrig.kinematics import joint_trajectories, skin, solve_joint_positions
+from pointrig.structure import _boundary_centroids, _Ctx
 
 
 @dataclass
@@ -241,13 +243,11 @@ def step2_standin(fig: Figure, eta: float = 1.0) -> StructureStandin:
         src = np.ascontiguousarray(fig.rest_points[sel])
         for f in range(F):
             R[f, b], T[f, b] = _core.kabsch(src, np.ascontiguousarray(fig.registered[f, sel]))
-    from pointrig.config import StructureConfig
-    from pointrig.structure import _boundary_centroids, _Ctx
-
     # step 2's own c~ (boundary band of the vote neighbourhoods, single-view depth correction
     # with the fixture's camera when the rest surface is one-sided)
-    q = StructureConfig().view_depth_quantile if fig.camera is not None else 0.0
-    ctx = _Ctx(fig.rest_points, fig.registered, StructureConfig())
+    cfg = StructureConfig()
+    q = cfg.view_depth_quantile if fig.camera is not None else 0.0
+    ctx = _Ctx(fig.rest_points, fig.registered, cfg)
     ct = _boundary_centroids(ctx, fig.labels, fig.bone_parent, fig.camera)
     joints = solve_joint_positions(R, T, fig.bone_parent, ct, eta)
     return StructureStandin(fig.labels.copy(), fig.bone_parent.copy(), R, T, joints, ct, 0,
