@@ -239,3 +239,43 @@ def test_swing_angles_ignore_twist_about_the_axis():
     got = swing_angles(R, np.array([[0, 1]]), axis)[0]
     want = np.arccos(np.clip(axis[0] @ mix @ axis[0], -1, 1))
     np.testing.assert_allclose(got, [0.0, 0.4, want], atol=1e-7)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_small_swings_of_long_limbs_are_kept_by_the_displacement_gate(seed):
+    """A 0.85 m arm whose parts swing only 6-8 deg against each other: every swing moves the
+    child's points by centimetres (> 1.5 % of the size), a visible articulation. The angle rule
+    alone (10 deg) folds the arm into one bone; ``merge_rule="both"`` keeps the parts (ground
+    truth: the figure's parts, purity >= 0.9). Sub-degree swings (millimetres) still merge."""
+    from structure_helpers import animate, make_figure, pose, purity, sample_surface
+
+    rng = np.random.default_rng(seed)
+    fig = make_figure("arm")
+    rest, truth = sample_surface(fig, 1500, rng)
+    R, T = animate(fig, 40, rng, amp_deg=(6.0, 8.0))
+    pts = pose(rest, truth, R, T) + rng.normal(scale=0.001, size=(40, len(rest), 3))
+    angle = extract_structure(rest, pts, StructureConfig(merge_rule="angle", single_view="no"))
+    both = extract_structure(rest, pts, StructureConfig(merge_rule="both", single_view="no"))
+    # oracle: a part whose points move < 1.5 % of the size against its parent (largest RMS
+    # over frames) is not an articulation: fold it into its parent
+    size = float(np.linalg.norm(np.ptp(rest, axis=0)))
+    visible = truth.copy()
+    for p in range(len(fig.names) - 1, -1, -1):
+        pp = fig.parent[p]
+        if pp < 0:
+            continue
+        x = rest[truth == p]
+        moved = np.einsum("fji,fmj->fmi", R[:, pp],
+                          np.einsum("fij,mj->fmi", R[:, p], x) + (T[:, p] - T[:, pp])[:, None])
+        if np.sqrt(((moved - x) ** 2).sum(-1).mean(1)).max() < 0.015 * size:
+            visible[visible == p] = pp
+    assert angle.n_bones == 1
+    assert both.n_bones == len(np.unique(visible)) >= 3
+    assert purity(both.labels, visible) >= 0.9
+
+    rng = np.random.default_rng(seed)
+    rest, truth = sample_surface(fig, 1500, rng)
+    R, T = animate(fig, 40, rng, amp_deg=(0.3, 0.5))
+    pts = pose(rest, truth, R, T) + rng.normal(scale=0.001, size=(40, len(rest), 3))
+    tiny = extract_structure(rest, pts, StructureConfig(merge_rule="both", single_view="no"))
+    assert tiny.n_bones == 1

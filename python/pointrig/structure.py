@@ -10,7 +10,9 @@ every frame) build a bone tree without being told the number of bones:
    frames, (iii) majority vote of the labels in a rest-pose ball around each point. The fits and
    residuals run in the Rust core (``_core.cluster_fit``, ``_core.cluster_residuals``).
 2. **Refinement** (§5.4), made precise (docs/structure.md): bones whose relative rotation never
-   exceeds ``merge_angle_deg`` (``merge_percentile``-th percentile over frames) are merged, tiny
+   exceeds ``merge_angle_deg`` (``merge_percentile``-th percentile over frames) and whose
+   relative motion moves the smaller bone by less than ``merge_displacement`` of the subject's
+   size (``merge_rule="both"``: no visible articulation either way) are merged, tiny
    clusters are absorbed, spurious leaves at branching joints are pruned, and bones whose joints
    (Eq. 20) collapse onto one point are removed ("merge joints that are very close").
 3. **Bone graph** (§5.3): bones that touch in the rest pose are linked with the transform-swap
@@ -247,6 +249,7 @@ class _Ctx:
         self.radius = radius
         self.centroid = Q.mean(axis=0)
         self.rms_radius = float(np.sqrt(((Q - self.centroid) ** 2).sum(1).mean()))
+        self.size = float(np.linalg.norm(Q.max(0) - Q.min(0)))  # bounding-box diagonal, m
 
     def fit(self, labels: np.ndarray, B: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return fit_bones(self.Q, self.Y, labels, B)
@@ -417,6 +420,39 @@ def _merge_stat(R: np.ndarray, pairs: list[tuple[int, int]], pct: float,
     return np.degrees(stat)
 
 
+def _merge_scores(ctx: _Ctx, labels: np.ndarray, R: np.ndarray, T: np.ndarray,
+                  pairs: list[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray]:
+    """Merge score per bone pair (``< 1`` = one bone) and the angle statistic (degrees).
+
+    ``merge_rule`` "angle": the noise-discounted relative-rotation statistic
+    (:func:`_merge_stat`) over ``merge_angle_deg``. "displacement": the same angle (radians)
+    times the reach of the smaller bone (RMS distance of its rest points from the pair's
+    contact point), i.e. how far the relative rotation moves that bone's points, over
+    ``merge_displacement * size`` (size = rest-pose bounding-box diagonal). "either" merges
+    when one of the two says so, "both" only when both do.
+    """
+    cfg = ctx.cfg
+    B = int(labels.max()) + 1
+    own = _core.cluster_residuals(ctx.Q, ctx.Y, R, T, np.ascontiguousarray(labels[:, None]))[:, 0]
+    nv = rotation_noise_var(ctx.Q, labels, own, B, ctx.F, cfg.noise_corr_exponent)
+    axes = _pair_axes(ctx.Q, labels, pairs) if cfg.merge_ignore_twist else None
+    stat = _merge_stat(R, pairs, cfg.merge_percentile, nv, cfg.noise_margin, axes)
+    s_angle = stat / cfg.merge_angle_deg
+    if cfg.merge_rule == "angle":
+        return s_angle, stat
+    reach = np.empty(len(pairs))
+    for n, (i, j) in enumerate(pairs):
+        _d, c = _closest_pair(ctx, labels, i, j)
+        reach[n] = min(float(np.sqrt(((ctx.Q[labels == b] - c) ** 2).sum(1).mean()))
+                       for b in (i, j))
+    s_disp = np.radians(stat) * reach / (cfg.merge_displacement * ctx.size)
+    if cfg.merge_rule == "displacement":
+        return s_disp, stat
+    if cfg.merge_rule == "either":
+        return np.minimum(s_angle, s_disp), stat
+    return np.maximum(s_angle, s_disp), stat
+
+
 def _merge_batch(ctx: _Ctx, labels: np.ndarray, extra_pairs: list[tuple[int, int]],
                  diag: dict[str, Any]) -> tuple[np.ndarray, bool]:
     """One batch of §5.4 merges; returns (labels, changed).
@@ -448,14 +484,10 @@ def _merge_batch(ctx: _Ctx, labels: np.ndarray, extra_pairs: list[tuple[int, int
             target[s] = int(nbrs[int(np.argmin(w))])
             diag.setdefault("absorbed", []).append(int(counts[s]))
     elif pairs:
-        own = _core.cluster_residuals(ctx.Q, ctx.Y, R, T,
-                                      np.ascontiguousarray(labels[:, None]))[:, 0]
-        nv = rotation_noise_var(ctx.Q, labels, own, B, ctx.F, cfg.noise_corr_exponent)
-        axes = _pair_axes(ctx.Q, labels, pairs) if cfg.merge_ignore_twist else None
-        stat = _merge_stat(R, pairs, cfg.merge_percentile, nv, cfg.noise_margin, axes)
+        score, stat = _merge_scores(ctx, labels, R, T, pairs)
         used: set[int] = set()
-        for idx in np.argsort(stat, kind="stable"):
-            if stat[idx] >= cfg.merge_angle_deg:
+        for idx in np.argsort(score, kind="stable"):
+            if score[idx] >= 1.0:
                 break
             i, j = pairs[idx]
             if i in used or j in used:
@@ -715,6 +747,11 @@ def _check_inputs(rest_points: np.ndarray, points: np.ndarray, cfg: StructureCon
                           "cluster_rounds >= 0")
     if not 0 <= cfg.merge_percentile <= 100:
         raise ConfigError("structure: merge_percentile must be in [0, 100]")
+    if cfg.merge_rule not in ("angle", "displacement", "both", "either"):
+        raise ConfigError(f"structure: merge_rule must be 'angle', 'displacement', 'both' or "
+                          f"'either', got {cfg.merge_rule!r}")
+    if cfg.merge_rule != "angle" and not cfg.merge_displacement > 0:
+        raise ConfigError("structure: merge_displacement must be > 0 (fraction of the size)")
     if not 0 <= cfg.view_depth_quantile <= 1:
         raise ConfigError("structure: view_depth_quantile must be in [0, 1]")
     if cfg.single_view not in ("auto", "yes", "no"):
@@ -777,12 +814,7 @@ def extract_structure(rest_points: np.ndarray, points: np.ndarray,
         parent, root, bridges = _build_tree(ctx, labels, B, R, T, diag)
         # motion test also along bridge edges (bones that do not touch)
         if bridges:
-            own = _core.cluster_residuals(Q, Y, R, T, np.ascontiguousarray(labels[:, None]))[:, 0]
-            nv = rotation_noise_var(Q, labels, own, B, ctx.F, cfg.noise_corr_exponent)
-            bp = sorted(bridges)
-            axes = _pair_axes(Q, labels, bp) if cfg.merge_ignore_twist else None
-            st = _merge_stat(R, bp, cfg.merge_percentile, nv, cfg.noise_margin, axes)
-            if (st < cfg.merge_angle_deg).any():
+            if (_merge_scores(ctx, labels, R, T, sorted(bridges))[0] < 1.0).any():
                 tree_pairs = sorted(bridges)
                 continue
         tree_pairs = []
