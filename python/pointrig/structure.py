@@ -440,8 +440,11 @@ def _merge_scores(ctx: _Ctx, labels: np.ndarray, R: np.ndarray, T: np.ndarray,
     s_angle = stat / cfg.merge_angle_deg
     if cfg.merge_rule == "angle":
         return s_angle, stat
-    reach = np.empty(len(pairs))
-    for n, (i, j) in enumerate(pairs):
+    # "both": a pair the angle test already keeps apart cannot merge; skip its contact search
+    need = s_angle < 1.0 if cfg.merge_rule == "both" else np.ones(len(pairs), bool)
+    reach = np.zeros(len(pairs))
+    for n in np.flatnonzero(need):
+        i, j = pairs[n]
         _d, c = _closest_pair(ctx, labels, i, j)
         reach[n] = min(float(np.sqrt(((ctx.Q[labels == b] - c) ** 2).sum(1).mean()))
                        for b in (i, j))
