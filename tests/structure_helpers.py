@@ -181,12 +181,14 @@ def pose(rest, labels, R, T, fig: Figure | None = None, blend: float = 0.0):
 
 def make_sequence(kind: str, n_points: int = 1500, n_frames: int = 40, seed: int = 0,
                   noise: float = 0.0, blend: float = 0.0, smooth_frames: int = 0,
-                  hide_near_joint: tuple[str, float] | None = None):
+                  hide_near_joint: tuple[str, float] | None = None,
+                  amp_deg: tuple[float, float] = (35.0, 70.0)):
     """A dict with rest (M,3), points (F,M,3), labels (M,), figure, R, T.
 
     ``noise``: per-frame Gaussian jitter (m); ``smooth_frames``: temporal moving-average window
     applied to the trajectories (imitates over-smoothed registration); ``hide_near_joint``:
-    (part name, radius) drops every point within radius of that part's joint (occlusion).
+    (part name, radius) drops every point within radius of that part's joint (occlusion);
+    ``amp_deg``: range of the joint-angle amplitudes (degrees, see :func:`animate`).
     """
     rng = np.random.default_rng(seed)
     fig = make_figure(kind)
@@ -195,7 +197,7 @@ def make_sequence(kind: str, n_points: int = 1500, n_frames: int = 40, seed: int
         name, rad = hide_near_joint
         keep = np.linalg.norm(rest - fig.a[fig.names.index(name)], axis=1) > rad
         rest, labels = rest[keep], labels[keep]
-    R, T = animate(fig, n_frames, rng)
+    R, T = animate(fig, n_frames, rng, amp_deg)
     pts = pose(rest, labels, R, T, fig, blend)
     if smooth_frames > 1:
         ker = np.ones(smooth_frames) / smooth_frames

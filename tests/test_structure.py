@@ -247,13 +247,11 @@ def test_small_swings_of_long_limbs_are_kept_by_the_displacement_gate(seed):
     child's points by centimetres (> 1.5 % of the size), a visible articulation. The angle rule
     alone (10 deg) folds the arm into one bone; ``merge_rule="both"`` keeps the parts (ground
     truth: the figure's parts, purity >= 0.9). Sub-degree swings (millimetres) still merge."""
-    from structure_helpers import animate, make_figure, pose, purity, sample_surface
+    from structure_helpers import purity
 
-    rng = np.random.default_rng(seed)
-    fig = make_figure("arm")
-    rest, truth = sample_surface(fig, 1500, rng)
-    R, T = animate(fig, 40, rng, amp_deg=(6.0, 8.0))
-    pts = pose(rest, truth, R, T) + rng.normal(scale=0.001, size=(40, len(rest), 3))
+    seq = make_sequence("arm", seed=seed, noise=0.001, amp_deg=(6.0, 8.0))
+    rest, pts, truth, fig, R, T = (seq[k] for k in ("rest", "points", "labels", "figure", "R",
+                                                    "T"))
     angle = extract_structure(rest, pts, StructureConfig(merge_rule="angle", single_view="no"))
     both = extract_structure(rest, pts, StructureConfig(merge_rule="both", single_view="no"))
     # oracle: a part whose points move < 1.5 % of the size against its parent (largest RMS
@@ -273,9 +271,7 @@ def test_small_swings_of_long_limbs_are_kept_by_the_displacement_gate(seed):
     assert both.n_bones == len(np.unique(visible)) >= 3
     assert purity(both.labels, visible) >= 0.9
 
-    rng = np.random.default_rng(seed)
-    rest, truth = sample_surface(fig, 1500, rng)
-    R, T = animate(fig, 40, rng, amp_deg=(0.3, 0.5))
-    pts = pose(rest, truth, R, T) + rng.normal(scale=0.001, size=(40, len(rest), 3))
-    tiny = extract_structure(rest, pts, StructureConfig(merge_rule="both", single_view="no"))
+    seq = make_sequence("arm", seed=seed, noise=0.001, amp_deg=(0.3, 0.5))
+    tiny = extract_structure(seq["rest"], seq["points"],
+                             StructureConfig(merge_rule="both", single_view="no"))
     assert tiny.n_bones == 1
