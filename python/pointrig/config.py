@@ -152,12 +152,12 @@ class StructureConfig:
     # two bones are one if the merge_percentile-th percentile over frames of the angle of their
     # relative rotation R_i^tT R_j^t stays below merge_angle_deg
     merge_angle_deg: float = 10.0
-    # "angle" (above), "displacement": the noise-discounted angle times the smaller bone's
-    # reach from the pair's contact point below merge_displacement * size (size = rest-pose
-    # bounding-box diagonal: scale-free, like the evaluation's 'visibly articulates' test),
-    # "either" / "both": merge when one / both of the two tests say so. "both" keeps small
-    # swings of long limbs (idle clips: 5-8 deg); exact-motion recall 0.710 -> 0.754 on 25
-    # sequences (docs/structure.md, session 8)
+    # "angle" (above only) or "both": also the displacement, the noise-discounted angle times
+    # the smaller bone's reach from the pair's contact point, must stay below
+    # merge_displacement * size (size = rest-pose bounding-box diagonal: scale-free, like the
+    # evaluation's 'visibly articulates' test). "both" keeps small swings of long limbs (idle
+    # clips: 5-8 deg); exact-motion recall 0.710 -> 0.754 on 25 sequences (docs/structure.md,
+    # session 8)
     merge_rule: str = "both"
     merge_displacement: float = 0.015
     merge_percentile: float = 95.0

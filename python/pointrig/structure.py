@@ -425,11 +425,11 @@ def _merge_scores(ctx: _Ctx, labels: np.ndarray, R: np.ndarray, T: np.ndarray,
     """Merge score per bone pair (``< 1`` = one bone) and the angle statistic (degrees).
 
     ``merge_rule`` "angle": the noise-discounted relative-rotation statistic
-    (:func:`_merge_stat`) over ``merge_angle_deg``. "displacement": the same angle (radians)
-    times the reach of the smaller bone (RMS distance of its rest points from the pair's
-    contact point), i.e. how far the relative rotation moves that bone's points, over
-    ``merge_displacement * size`` (size = rest-pose bounding-box diagonal). "either" merges
-    when one of the two says so, "both" only when both do.
+    (:func:`_merge_stat`) over ``merge_angle_deg``. "both": the larger of that and the
+    displacement score, the same angle (radians) times the reach of the smaller bone (RMS
+    distance of its rest points from the pair's contact point), i.e. how far the relative
+    rotation moves that bone's points, over ``merge_displacement * size`` (size = rest-pose
+    bounding-box diagonal): a pair merges only when both are small.
     """
     cfg = ctx.cfg
     B = int(labels.max()) + 1
@@ -440,19 +440,14 @@ def _merge_scores(ctx: _Ctx, labels: np.ndarray, R: np.ndarray, T: np.ndarray,
     s_angle = stat / cfg.merge_angle_deg
     if cfg.merge_rule == "angle":
         return s_angle, stat
-    # "both": a pair the angle test already keeps apart cannot merge; skip its contact search
-    need = s_angle < 1.0 if cfg.merge_rule == "both" else np.ones(len(pairs), bool)
+    # a pair the angle test already keeps apart cannot merge: skip its contact search
     reach = np.zeros(len(pairs))
-    for n in np.flatnonzero(need):
+    for n in np.flatnonzero(s_angle < 1.0):
         i, j = pairs[n]
         _d, c = _closest_pair(ctx, labels, i, j)
         reach[n] = min(float(np.sqrt(((ctx.Q[labels == b] - c) ** 2).sum(1).mean()))
                        for b in (i, j))
     s_disp = np.radians(stat) * reach / (cfg.merge_displacement * ctx.size)
-    if cfg.merge_rule == "displacement":
-        return s_disp, stat
-    if cfg.merge_rule == "either":
-        return np.minimum(s_angle, s_disp), stat
     return np.maximum(s_angle, s_disp), stat
 
 
@@ -750,10 +745,10 @@ def _check_inputs(rest_points: np.ndarray, points: np.ndarray, cfg: StructureCon
                           "cluster_rounds >= 0")
     if not 0 <= cfg.merge_percentile <= 100:
         raise ConfigError("structure: merge_percentile must be in [0, 100]")
-    if cfg.merge_rule not in ("angle", "displacement", "both", "either"):
-        raise ConfigError(f"structure: merge_rule must be 'angle', 'displacement', 'both' or "
-                          f"'either', got {cfg.merge_rule!r}")
-    if cfg.merge_rule != "angle" and not cfg.merge_displacement > 0:
+    if cfg.merge_rule not in ("angle", "both"):
+        raise ConfigError(f"structure: merge_rule must be 'angle' or 'both', "
+                          f"got {cfg.merge_rule!r}")
+    if cfg.merge_rule == "both" and not cfg.merge_displacement > 0:
         raise ConfigError("structure: merge_displacement must be > 0 (fraction of the size)")
     if not 0 <= cfg.view_depth_quantile <= 1:
         raise ConfigError("structure: view_depth_quantile must be in [0, 1]")
