@@ -17,10 +17,12 @@ from registration_helpers import (
     nearest_observed,
     posteriors,
 )
+from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from pointrig import _core
 from pointrig.config import RegistrationConfig
+from pointrig.errors import ConfigError
 from pointrig.registration import RegistrationResult, build_graph, cache_key, register_sequence
 from pointrig.sequence import PointSequence
 
@@ -105,11 +107,29 @@ def _clean_cfg(**kw) -> RegistrationConfig:
 def test_clean_sequence_known_correspondences_under_half_a_centimetre() -> None:
     frames, truth = capsule_arm(10, 8.0, n=6000)
     res = register_sequence(PointSequence(frames), _clean_cfg())
-    err = correspondence_error(res.rest_points, res.points, truth, max_offset=0.003)
+    err = correspondence_error(res.rest_points, res.points, truth,
+                               rest_frame=res.params["rest_frame_index"], max_offset=0.003)
     assert err.shape[1] > 400
     assert err.mean() < 0.005
     assert res.points.shape == (10, len(res.rest_points), 3)
     assert np.all(res.iterations >= 1) and np.all(res.sigma2 > 0)
+
+
+def test_middle_rest_frame_registers_both_ways() -> None:
+    """``rest_frame="middle"`` takes the rest points from frame F // 2 (they are then
+    unchanged there) and registers the frames before it backwards: exact correspondences on
+    every frame, like the first frame as rest; a bad value is a ConfigError."""
+    frames, truth = capsule_arm(9, 8.0, n=6000)
+    res = register_sequence(PointSequence(frames), _clean_cfg(rest_frame="middle"))
+    assert res.params["rest_frame_index"] == 4
+    assert np.abs(res.points[4] - res.rest_points).max() < 0.003
+    assert cKDTree(frames[4]).query(res.rest_points)[0].max() < 0.01
+    err = correspondence_error(res.rest_points, res.points, truth, rest_frame=4, max_offset=0.003)
+    assert err.shape[1] > 400 and err.mean() < 0.005
+    assert err[0].mean() < 0.005 and err[-1].mean() < 0.005
+    for bad in ("centre", 9, -1, True):
+        with pytest.raises(ConfigError, match="rest_frame"):
+            register_sequence(PointSequence(frames), _clean_cfg(rest_frame=bad))
 
 
 def test_noisy_sequence_with_outliers_bounded_error() -> None:
@@ -124,7 +144,8 @@ def test_noisy_sequence_with_outliers_bounded_error() -> None:
         out = rng.uniform(lo, hi, size=(len(f) // 10, 3))
         noisy.append(np.vstack([g, out]))
     res = register_sequence(PointSequence(noisy), _clean_cfg())
-    err = correspondence_error(res.rest_points, res.points, truth, max_offset=0.006)
+    err = correspondence_error(res.rest_points, res.points, truth,
+                               rest_frame=res.params["rest_frame_index"], max_offset=0.006)
     assert err.mean() < 0.015
     assert np.percentile(err, 90) < 0.03
 
@@ -153,6 +174,7 @@ sys.path.insert(0, {tests!r})
 from registration_helpers import capsule_arm
 from pointrig.registration import register_sequence
 from pointrig.config import RegistrationConfig
+from pointrig.errors import ConfigError
 from pointrig.sequence import PointSequence
 frames, _ = capsule_arm(4, 8.0, n=3000)
 for solver in ("gauss_newton", "sweeps"):
@@ -176,7 +198,6 @@ def _synth_tracking(kind: str) -> tuple[np.ndarray, np.ndarray]:
     """Per-frame nearest-observed distances ``(F, M)`` of the registration and of an oracle:
     the same rest points moved by the ground-truth surface motion of their nearest surface
     sample (what exact tracking would score on the same noisy, partial data)."""
-    from scipy.spatial import cKDTree
 
     from pointrig import synth
 
@@ -190,8 +211,9 @@ def _synth_tracking(kind: str) -> tuple[np.ndarray, np.ndarray]:
         assert np.linalg.norm(root[-1] - root[0]) >= 2.0
     res = register_sequence(s.to_point_sequence(), RegistrationConfig())
     clean = [f[lab >= 0] for f, lab in zip(s.frames, s.point_labels)]
-    _, si = cKDTree(s.surface[0]).query(res.rest_points)
-    oracle = res.rest_points[None] + s.surface[:, si] - s.surface[0][si][None]
+    rf = res.params["rest_frame_index"]
+    _, si = cKDTree(s.surface[rf]).query(res.rest_points)
+    oracle = res.rest_points[None] + s.surface[:, si] - s.surface[rf][si][None]
     return nearest_observed(res.points, clean), nearest_observed(oracle, clean)
 
 

@@ -58,7 +58,11 @@ class RegistrationConfig:
     See docs/registration.md for the derivations and the ablation.
     """
 
-    rest_frame: int = 0  # which frame gives the rest pose (§4: "other frames can also be chosen")
+    # which frame gives the rest pose (§4: "other frames can also be chosen"): an index, or
+    # "middle" (n_frames // 2, default): frames are registered forwards and backwards from it,
+    # so the chain of frame-to-frame registrations (and its tangential drift) is half as long;
+    # 25 sequences: correspondence error 5.90 -> 4.73 cm (docs/registration.md, session 9)
+    rest_frame: int | str = "middle"
     n_rest_points: int = 2000  # M, points of the rest-pose point set surface
     node_spacing: float = 0.0  # deformation-graph node spacing, metres (0 = from n_nodes)
     n_nodes: int = 200  # target node count when node_spacing is 0

@@ -193,6 +193,24 @@ def cache_key(seq: PointSequence, config: RegistrationConfig) -> str:
     return h.hexdigest()
 
 
+def resolve_rest_frame(config: RegistrationConfig, n_frames: int) -> int:
+    """Index of the rest frame: ``config.rest_frame`` if an int, ``n_frames // 2`` if "middle".
+
+    Raises
+    ------
+    ConfigError
+        If it is neither a frame index in ``[0, n_frames)`` nor "middle".
+    """
+    rf = config.rest_frame
+    if isinstance(rf, str):
+        if rf != "middle":
+            raise ConfigError(f"[registration] rest_frame must be a frame index or 'middle', got {rf!r}")
+        return n_frames // 2
+    if isinstance(rf, bool) or not isinstance(rf, (int, np.integer)) or not 0 <= rf < n_frames:
+        raise ConfigError(f"[registration] rest_frame {rf!r} outside 0..{n_frames - 1}")
+    return int(rf)
+
+
 def _validate(config: RegistrationConfig, n_frames: int) -> None:
     if config.solver not in ("gauss_newton", "sweeps"):
         raise ConfigError(f"[registration] solver must be 'gauss_newton' or 'sweeps', got {config.solver!r}")
@@ -203,8 +221,7 @@ def _validate(config: RegistrationConfig, n_frames: int) -> None:
             f"[registration] sigma2_start must be 'data', 'residual' or 'fixed', "
             f"got {config.sigma2_start!r}"
         )
-    if not 0 <= config.rest_frame < n_frames:
-        raise ConfigError(f"[registration] rest_frame {config.rest_frame} outside 0..{n_frames - 1}")
+    resolve_rest_frame(config, n_frames)
     if not (0.0 <= config.omega < 1.0):
         raise ConfigError("[registration] omega must be in [0, 1)")
     if config.sigma2_init <= 0 or config.sigma2_min <= 0 or config.sigma2_start_max <= 0:
@@ -293,6 +310,7 @@ def register_sequence(
     config = config or RegistrationConfig()
     f = seq.n_frames
     _validate(config, f)
+    rf = resolve_rest_frame(config, f)
     lo, hi = seq.bounds()
     if np.linalg.norm(hi - lo) > 50.0:
         log.warning(
@@ -300,7 +318,7 @@ def register_sequence(
             np.linalg.norm(hi - lo),
         )
     rest = rest_surface(
-        seq.frames[config.rest_frame],
+        seq.frames[rf],
         config.n_rest_points,
         sor_neighbors=config.sor_neighbors,
         sor_std_ratio=config.sor_std_ratio,
@@ -321,13 +339,13 @@ def register_sequence(
     iters = np.zeros(f, dtype=np.int64)
     energy = np.zeros(f)
     matched = np.zeros(f)
-    order = list(range(config.rest_frame, f)) + list(range(config.rest_frame - 1, -1, -1))
+    order = list(range(rf, f)) + list(range(rf - 1, -1, -1))
     eye = np.ascontiguousarray(np.broadcast_to(np.eye(3), (j, 3, 3)))
     zero = np.zeros((j, 3))
     hist: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     done = 0
     for t in order:
-        step = 1 if t >= config.rest_frame else -1
+        step = 1 if t >= rf else -1
         prev = hist.get(t - step)
         prev2 = hist.get(t - 2 * step)
         if prev is None:
@@ -367,7 +385,7 @@ def register_sequence(
         sigma2=sigma2,
         iterations=iters,
         energy=energy,
-        params=dataclasses.asdict(config),
+        params={**dataclasses.asdict(config), "rest_frame_index": rf},
         matched=matched,
         key=cache_key(seq, config),
     )
