@@ -241,21 +241,47 @@ def test_swing_angles_ignore_twist_about_the_axis():
     np.testing.assert_allclose(got, [0.0, 0.4, want], atol=1e-7)
 
 
+def test_relative_rotation_range_matches_scipy_and_ignores_the_rest_frame():
+    """Oracle: the angle between the relative rotations of every two frames, by scipy; the
+    statistic is unchanged when every bone's rotations are re-referenced to another rest pose
+    (``R_b^t -> R_b^t A_b``), while the rest-referenced angle changes."""
+    from scipy.spatial.transform import Rotation
+
+    from pointrig.structure import relative_rotation_angles, relative_rotation_range
+
+    rng = np.random.default_rng(3)
+    F, B = 7, 3
+    R = Rotation.random(F * B, random_state=4).as_matrix().reshape(F, B, 3, 3)
+    pairs = np.array([[0, 1], [2, 1]])
+    got = relative_rotation_range(R, pairs)
+    for n, (i, j) in enumerate(pairs):
+        rel = [Rotation.from_matrix(R[t, i].T @ R[t, j]) for t in range(F)]
+        want = [(rel[s].inv() * rel[t]).magnitude() for s in range(F) for t in range(F)]
+        np.testing.assert_allclose(got[n], want, atol=1e-6)
+    A = Rotation.random(B, random_state=int(rng.integers(100))).as_matrix()
+    R2 = np.einsum("fbij,bjk->fbik", R, A)
+    np.testing.assert_allclose(relative_rotation_range(R2, pairs), got, atol=1e-6)
+    assert np.abs(relative_rotation_angles(R2, pairs) - relative_rotation_angles(R, pairs)).max() > 0.1
+
+
 @pytest.mark.parametrize("seed", [0, 1])
 def test_small_swings_of_long_limbs_are_kept_by_the_displacement_gate(seed):
     """A 0.85 m arm whose parts swing only 6-8 deg against each other: every swing moves the
     child's points by centimetres (> 1.5 % of the size), a visible articulation. The angle rule
     alone (10 deg) folds the arm into one bone; ``merge_rule="both"`` keeps the parts (ground
-    truth: the figure's parts, purity >= 0.9). Sub-degree swings (millimetres) still merge."""
+    truth: the figure's parts, purity >= 0.9). Sub-degree swings (millimetres) still merge.
+    The angle rule is measured against the rest pose here (``merge_reference="rest"``): the
+    default range reference sees up to twice the amplitude and keeps these swings as well."""
     from structure_helpers import purity
 
     seq = make_sequence("arm", seed=seed, noise=0.001, amp_deg=(6.0, 8.0))
     rest, pts, truth, fig, R, T = (seq[k] for k in ("rest", "points", "labels", "figure", "R",
                                                     "T"))
-    angle = extract_structure(rest, pts, StructureConfig(merge_rule="angle", single_view="no"))
+    angle = extract_structure(rest, pts, StructureConfig(merge_rule="angle", single_view="no",
+                                                         merge_reference="rest"))
     both = extract_structure(rest, pts, StructureConfig(merge_rule="both", single_view="no"))
     # oracle: a part whose points move < 1.5 % of the size against its parent (largest RMS
-    # over frames) is not an articulation: fold it into its parent
+    # between two frames) is not an articulation: fold it into its parent
     size = float(np.linalg.norm(np.ptp(rest, axis=0)))
     visible = truth.copy()
     for p in range(len(fig.names) - 1, -1, -1):
@@ -265,7 +291,9 @@ def test_small_swings_of_long_limbs_are_kept_by_the_displacement_gate(seed):
         x = rest[truth == p]
         moved = np.einsum("fji,fmj->fmi", R[:, pp],
                           np.einsum("fij,mj->fmi", R[:, p], x) + (T[:, p] - T[:, pp])[:, None])
-        if np.sqrt(((moved - x) ** 2).sum(-1).mean(1)).max() < 0.015 * size:
+        # range over every two frames, like the default merge_reference="range"
+        rng_rms = np.sqrt(((moved[:, None] - moved[None]) ** 2).sum(-1).mean(-1)).max()
+        if rng_rms < 0.015 * size:
             visible[visible == p] = pp
     assert angle.n_bones == 1
     assert both.n_bones == len(np.unique(visible)) >= 3

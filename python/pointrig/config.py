@@ -165,6 +165,11 @@ class StructureConfig:
     merge_rule: str = "both"
     merge_displacement: float = 0.015
     merge_percentile: float = 95.0
+    # what the relative rotation is measured against: "range" (default) = between every two
+    # frames (R_i^sT R_j^s)^T (R_i^tT R_j^t), i.e. the range over the sequence, independent of
+    # which frame is the rest pose; "rest" = against the rest pose only (before session 9; it
+    # sees about half the range when the rest frame is mid-motion). docs/structure.md session 9
+    merge_reference: str = "range"
     # measure only the swing of the relative rotation (how far it turns the rest-pose axis
     # between the two bones' centres), not the twist about that axis: twist of a featureless
     # limb is barely observable from one view and registration drift shows up as twist

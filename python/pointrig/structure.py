@@ -53,6 +53,7 @@ __all__ = [
     "fit_bones",
     "eq15_weights",
     "relative_rotation_angles",
+    "relative_rotation_range",
     "write_structure_outputs",
 ]
 
@@ -193,6 +194,26 @@ def relative_rotation_angles(R: np.ndarray, pairs: np.ndarray) -> np.ndarray:
     pairs = np.asarray(pairs, np.int64).reshape(-1, 2)
     tr = np.einsum("fpij,fpij->pf", R[:, pairs[:, 0]], R[:, pairs[:, 1]])
     return np.arccos(np.clip(0.5 * (tr - 1.0), -1.0, 1.0))
+
+
+def relative_rotation_range(R: np.ndarray, pairs: np.ndarray, max_frames: int = 128
+                            ) -> np.ndarray:
+    """Angle (radians) between the relative rotations of every two frames, ``(P, G*G)``.
+
+    For each pair ``(i, j)`` and frames ``s, t`` the angle of ``rel_s^T rel_t`` with
+    ``rel_t = R_i^tT R_j^t``: how far bone ``j`` turns against bone ``i`` between any two frames,
+    so any percentile of it measures the *range* of the relative motion and does not depend on
+    which frame is the rest pose (replacing every ``R^t`` by ``R^t A_b`` for fixed per-bone
+    ``A_b`` leaves it unchanged). ``G = min(F, max_frames)`` evenly spaced frames (memory
+    ``P G^2``).
+    """
+    pairs = np.asarray(pairs, np.int64).reshape(-1, 2)
+    F = R.shape[0]
+    sel = np.unique(np.linspace(0, F - 1, min(F, max_frames)).round().astype(np.int64))
+    rel = np.einsum("fpji,fpjk->pfik", R[sel][:, pairs[:, 0]], R[sel][:, pairs[:, 1]])
+    tr = np.einsum("pfij,pgij->pfg", rel, rel)
+    ang = np.arccos(np.clip(0.5 * (tr - 1.0), -1.0, 1.0))
+    return ang.reshape(len(pairs), -1)
 
 
 def swing_angles(R: np.ndarray, pairs: np.ndarray, axes: np.ndarray) -> np.ndarray:
@@ -397,15 +418,22 @@ def rotation_noise_var(Q: np.ndarray, labels: np.ndarray, own_res: np.ndarray, B
 
 def _merge_stat(R: np.ndarray, pairs: list[tuple[int, int]], pct: float,
                 noise_var: np.ndarray | None = None, margin: float = 1.0,
-                axes: np.ndarray | None = None) -> np.ndarray:
+                axes: np.ndarray | None = None, reference: str = "rest") -> np.ndarray:
     """Relative-rotation statistic (degrees) per pair: the ``pct``-th percentile over frames of
-    the angle of ``R_i^tT R_j^t`` (or, with ``axes``, of its swing away from the axis between
-    the bones, see :func:`swing_angles`), minus (in quadrature) the same percentile expected
-    from the Kabsch noise of the two bones alone (``margin`` times it)."""
+    the angle of ``R_i^tT R_j^t`` (``reference="rest"``; ``"range"``: over every two frames,
+    :func:`relative_rotation_range`; with ``axes``, of its swing away from the axis between
+    the bones, see :func:`swing_angles`, always against the rest pose), minus (in quadrature)
+    the same percentile expected from the Kabsch noise of the two bones alone (``margin``
+    times it)."""
     if not pairs:
         return np.zeros(0)
     P = np.array(pairs)
-    ang = relative_rotation_angles(R, P) if axes is None else swing_angles(R, P, axes)
+    if axes is not None:
+        ang = swing_angles(R, P, axes)
+    elif reference == "range":
+        ang = relative_rotation_range(R, P)
+    else:
+        ang = relative_rotation_angles(R, P)
     stat = np.percentile(ang, pct, axis=1)
     if noise_var is not None and margin > 0:
         from scipy.stats import chi
@@ -436,7 +464,8 @@ def _merge_scores(ctx: _Ctx, labels: np.ndarray, R: np.ndarray, T: np.ndarray,
     own = _core.cluster_residuals(ctx.Q, ctx.Y, R, T, np.ascontiguousarray(labels[:, None]))[:, 0]
     nv = rotation_noise_var(ctx.Q, labels, own, B, ctx.F, cfg.noise_corr_exponent)
     axes = _pair_axes(ctx.Q, labels, pairs) if cfg.merge_ignore_twist else None
-    stat = _merge_stat(R, pairs, cfg.merge_percentile, nv, cfg.noise_margin, axes)
+    stat = _merge_stat(R, pairs, cfg.merge_percentile, nv, cfg.noise_margin, axes,
+                       cfg.merge_reference)
     s_angle = stat / cfg.merge_angle_deg
     if cfg.merge_rule == "angle":
         return s_angle, stat
@@ -745,6 +774,9 @@ def _check_inputs(rest_points: np.ndarray, points: np.ndarray, cfg: StructureCon
                           "cluster_rounds >= 0")
     if not 0 <= cfg.merge_percentile <= 100:
         raise ConfigError("structure: merge_percentile must be in [0, 100]")
+    if cfg.merge_reference not in ("range", "rest"):
+        raise ConfigError(f"structure: merge_reference must be 'range' or 'rest', "
+                          f"got {cfg.merge_reference!r}")
     if cfg.merge_rule not in ("angle", "both"):
         raise ConfigError(f"structure: merge_rule must be 'angle' or 'both', "
                           f"got {cfg.merge_rule!r}")
