@@ -221,7 +221,6 @@ def _validate(config: RegistrationConfig, n_frames: int) -> None:
             f"[registration] sigma2_start must be 'data', 'residual' or 'fixed', "
             f"got {config.sigma2_start!r}"
         )
-    resolve_rest_frame(config, n_frames)
     if not (0.0 <= config.omega < 1.0):
         raise ConfigError("[registration] omega must be in [0, 1)")
     if config.sigma2_init <= 0 or config.sigma2_min <= 0 or config.sigma2_start_max <= 0:
@@ -310,7 +309,7 @@ def register_sequence(
     config = config or RegistrationConfig()
     f = seq.n_frames
     _validate(config, f)
-    rf = resolve_rest_frame(config, f)
+    rf = resolve_rest_frame(config, f)  # also validates it
     lo, hi = seq.bounds()
     if np.linalg.norm(hi - lo) > 50.0:
         log.warning(
