@@ -174,7 +174,6 @@ sys.path.insert(0, {tests!r})
 from registration_helpers import capsule_arm
 from pointrig.registration import register_sequence
 from pointrig.config import RegistrationConfig
-from pointrig.errors import ConfigError
 from pointrig.sequence import PointSequence
 frames, _ = capsule_arm(4, 8.0, n=3000)
 for solver in ("gauss_newton", "sweeps"):

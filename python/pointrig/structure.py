@@ -193,6 +193,11 @@ def relative_rotation_angles(R: np.ndarray, pairs: np.ndarray) -> np.ndarray:
     """
     pairs = np.asarray(pairs, np.int64).reshape(-1, 2)
     tr = np.einsum("fpij,fpij->pf", R[:, pairs[:, 0]], R[:, pairs[:, 1]])
+    return _trace_angle(tr)
+
+
+def _trace_angle(tr: np.ndarray) -> np.ndarray:
+    """Rotation angle (radians) from the trace of a rotation matrix (any shape)."""
     return np.arccos(np.clip(0.5 * (tr - 1.0), -1.0, 1.0))
 
 
@@ -210,10 +215,10 @@ def relative_rotation_range(R: np.ndarray, pairs: np.ndarray, max_frames: int = 
     pairs = np.asarray(pairs, np.int64).reshape(-1, 2)
     F = R.shape[0]
     sel = np.unique(np.linspace(0, F - 1, min(F, max_frames)).round().astype(np.int64))
-    rel = np.einsum("fpji,fpjk->pfik", R[sel][:, pairs[:, 0]], R[sel][:, pairs[:, 1]])
+    Rs = R[sel]
+    rel = np.einsum("fpji,fpjk->pfik", Rs[:, pairs[:, 0]], Rs[:, pairs[:, 1]])
     tr = np.einsum("pfij,pgij->pfg", rel, rel)
-    ang = np.arccos(np.clip(0.5 * (tr - 1.0), -1.0, 1.0))
-    return ang.reshape(len(pairs), -1)
+    return _trace_angle(tr).reshape(len(pairs), -1)
 
 
 def swing_angles(R: np.ndarray, pairs: np.ndarray, axes: np.ndarray) -> np.ndarray:
