@@ -289,3 +289,68 @@ def test_residual_start_holds_a_static_subject() -> None:
     reg = register_sequence(seq, RegistrationConfig(sigma2_start="residual"))
     drift = np.linalg.norm(reg.points - reg.rest_points, axis=2).mean(1)
     assert drift.max() < 0.012, drift
+
+
+def _u_shape_with_fragment() -> tuple[np.ndarray, np.ndarray]:
+    """Two 1 m strips 4 cm apart joined by a bend at x = 0 (an arm resting against a torso),
+    plus a separate patch 10 cm away (an occlusion fragment); returns points and part ids
+    (0, 1 = the strips, 2 = the bend, 3 = the fragment)."""
+    rng = np.random.default_rng(0)
+    pts, part = [], []
+    for k, y0 in enumerate((0.0, 0.04)):
+        p = np.column_stack([rng.uniform(0.04, 1.0, 2500), np.full(2500, y0),
+                             rng.uniform(0.0, 0.08, 2500)])
+        pts.append(p)
+        part.append(np.full(len(p), k))
+    a = rng.uniform(np.pi / 2, 1.5 * np.pi, 300)
+    pts.append(np.column_stack([0.04 + 0.02 * np.cos(a), 0.02 + 0.02 * np.sin(a),
+                                rng.uniform(0.0, 0.08, 300)]))
+    part.append(np.full(300, 2))
+    frag = np.column_stack([rng.uniform(0.5, 0.7, 400), np.full(400, 0.14),
+                            rng.uniform(0.0, 0.08, 400)])
+    pts.append(frag)
+    part.append(np.full(400, 3))
+    return np.vstack(pts), np.concatenate(part)
+
+
+def test_geodesic_node_edges_cut_touching_parts_and_keep_fragments() -> None:
+    """Node edges across the 4 cm gap between the strips are Euclidean neighbours but 1-2 m
+    apart along the surface: ``node_geodesic_ratio`` drops them; edges along each strip and
+    the link to the separate fragment (not connected through the points) stay."""
+    import networkx as nx
+
+    rest, part = _u_shape_with_fragment()
+    node_part = {}
+    graphs = {}
+    for ratio in (0.0, 1.5):
+        g = build_graph(rest, RegistrationConfig(n_nodes=80, k_node_neighbors=6,
+                                                 node_geodesic_ratio=ratio))
+        near = cKDTree(rest).query(g.nodes)[1]
+        node_part[ratio] = part[near]
+        graphs[ratio] = g
+    g0, g1 = graphs[0.0], graphs[1.5]
+    np.testing.assert_array_equal(g0.nodes, g1.nodes)
+    npart, x = node_part[0.0], g0.nodes[:, 0]
+
+    def crossing(edges: np.ndarray) -> np.ndarray:
+        a, b = edges[:, 0], edges[:, 1]
+        return (npart[a] != npart[b]) & (npart[a] < 2) & (npart[b] < 2) \
+            & (x[a] > 0.3) & (x[b] > 0.3)
+
+    def along(edges: np.ndarray) -> int:
+        a, b = edges[:, 0], edges[:, 1]
+        return int(((npart[a] == npart[b]) & (npart[a] < 2)).sum())
+
+    assert crossing(g0.edges).sum() > 0  # the Euclidean graph ties the strips together
+    assert crossing(g1.edges).sum() == 0
+    assert along(g1.edges) == along(g0.edges)
+    # every edge kept is one of the Euclidean ones; the fragment stays attached
+    assert {tuple(e) for e in g1.edges} <= {tuple(e) for e in g0.edges}
+    G = nx.Graph([tuple(e) for e in g1.edges])
+    G.add_nodes_from(range(len(g1.nodes)))
+    assert nx.is_connected(G)
+    assert any((npart[a] == 3) != (npart[b] == 3) for a, b in g1.edges)
+    frames = [rest, rest]
+    for bad in (0.5, -1.0):
+        with pytest.raises(ConfigError, match="node_geodesic_ratio"):
+            register_sequence(PointSequence(frames), RegistrationConfig(node_geodesic_ratio=bad))

@@ -170,6 +170,8 @@ def build_graph(rest: np.ndarray, config: RegistrationConfig) -> DeformationGrap
         dst = nidx[:, 1:].reshape(-1)
         edges = np.stack([src, dst], axis=1)
         edges = edges[edges[:, 0] != edges[:, 1]]
+        if config.node_geodesic_ratio > 0 and len(edges):
+            edges = _geodesic_filter(rest, nodes, edges, config.node_geodesic_ratio)
     else:
         edges = np.zeros((0, 2), dtype=np.int64)
     return DeformationGraph(
@@ -179,6 +181,42 @@ def build_graph(rest: np.ndarray, config: RegistrationConfig) -> DeformationGrap
         np.ascontiguousarray(w),
         np.ascontiguousarray(edges, dtype=np.int64),
     )
+
+
+def _geodesic_filter(rest: np.ndarray, nodes: np.ndarray, edges: np.ndarray,
+                     ratio: float, k: int = 8) -> np.ndarray:
+    """Node edges ``(E, 2)`` whose geodesic length (shortest path over the k-NN graph of the
+    rest points, neighbours within twice the median k-th neighbour distance) is at most
+    ``ratio`` times their
+    Euclidean length, plus edges between nodes the graph does not connect."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import dijkstra
+
+    M = len(rest)
+    tree = cKDTree(rest)
+    d, idx = tree.query(rest, k=min(k + 1, M))
+    d, idx = d[:, 1:], idx[:, 1:]
+    r = 2.0 * float(np.median(d[:, -1]))
+    ok = d <= r
+    rows = np.repeat(np.arange(M), d.shape[1])[ok.ravel()]
+    G = coo_matrix((d.ravel()[ok.ravel()], (rows, idx.ravel()[ok.ravel()])), shape=(M, M)).tocsr()
+    node_pt = tree.query(nodes)[1]
+    eu = np.linalg.norm(nodes[edges[:, 0]] - nodes[edges[:, 1]], axis=1)
+    src = np.unique(edges[:, 0])
+    geo = dijkstra(G, directed=False, indices=node_pt[src], limit=ratio * float(eu.max()) + 1e-12)
+    row_of = {int(s): n for n, s in enumerate(src)}
+    g = geo[[row_of[int(a)] for a in edges[:, 0]], node_pt[edges[:, 1]]]
+    # unreachable within the limit: a separate fragment (keep) or a long detour (drop)
+    comp = _components(G)
+    same = comp[node_pt[edges[:, 0]]] == comp[node_pt[edges[:, 1]]]
+    keep = (g <= ratio * eu + 1e-12) | ~same
+    return edges[keep]
+
+
+def _components(G) -> np.ndarray:
+    from scipy.sparse.csgraph import connected_components
+
+    return connected_components(G, directed=False)[1]
 
 
 def cache_key(seq: PointSequence, config: RegistrationConfig) -> str:
@@ -227,6 +265,11 @@ def _validate(config: RegistrationConfig, n_frames: int) -> None:
         raise ConfigError("[registration] sigma^2 parameters must be positive")
     if config.max_iterations < 1 or config.n_rest_points < 10:
         raise ConfigError("[registration] max_iterations >= 1 and n_rest_points >= 10 required")
+    if not (config.node_geodesic_ratio == 0 or config.node_geodesic_ratio >= 1):
+        raise ConfigError(
+            "[registration] node_geodesic_ratio must be 0 (off) or >= 1 (a geodesic path is "
+            f"never shorter than the straight line), got {config.node_geodesic_ratio!r}"
+        )
 
 
 def _cpd_sigma2(y: np.ndarray, x: np.ndarray) -> float:
