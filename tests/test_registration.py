@@ -320,17 +320,11 @@ def test_geodesic_node_edges_cut_touching_parts_and_keep_fragments() -> None:
     import networkx as nx
 
     rest, part = _u_shape_with_fragment()
-    node_part = {}
-    graphs = {}
-    for ratio in (0.0, 1.5):
-        g = build_graph(rest, RegistrationConfig(n_nodes=80, k_node_neighbors=6,
-                                                 node_geodesic_ratio=ratio))
-        near = cKDTree(rest).query(g.nodes)[1]
-        node_part[ratio] = part[near]
-        graphs[ratio] = g
-    g0, g1 = graphs[0.0], graphs[1.5]
+    g0, g1 = (build_graph(rest, RegistrationConfig(n_nodes=80, k_node_neighbors=6,
+                                                   node_geodesic_ratio=ratio))
+              for ratio in (0.0, 1.5))
     np.testing.assert_array_equal(g0.nodes, g1.nodes)
-    npart, x = node_part[0.0], g0.nodes[:, 0]
+    npart, x = part[cKDTree(rest).query(g0.nodes)[1]], g0.nodes[:, 0]
 
     def crossing(edges: np.ndarray) -> np.ndarray:
         a, b = edges[:, 0], edges[:, 1]
@@ -350,7 +344,7 @@ def test_geodesic_node_edges_cut_touching_parts_and_keep_fragments() -> None:
     G.add_nodes_from(range(len(g1.nodes)))
     assert nx.is_connected(G)
     assert any((npart[a] == 3) != (npart[b] == 3) for a, b in g1.edges)
-    frames = [rest, rest]
     for bad in (0.5, -1.0):
         with pytest.raises(ConfigError, match="node_geodesic_ratio"):
-            register_sequence(PointSequence(frames), RegistrationConfig(node_geodesic_ratio=bad))
+            register_sequence(PointSequence([rest, rest]),
+                              RegistrationConfig(node_geodesic_ratio=bad))

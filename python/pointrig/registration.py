@@ -139,7 +139,9 @@ def build_graph(rest: np.ndarray, config: RegistrationConfig) -> DeformationGrap
     """Nodes sampled uniformly from the rest points (farthest-point sampling, or a voxel grid
     of ``node_spacing``); each point driven by its ``k_point_nodes`` nearest nodes with
     Sumner et al.'s weights ``(1 - d / d_max)^2`` (normalised); node edges by Euclidean k-NN,
-    so separate fragments of a single-view cloud stay connected."""
+    so separate fragments of a single-view cloud stay connected, minus the edges whose path
+    over the rest points is more than ``node_geodesic_ratio`` times longer (parts that only
+    touch in the rest pose)."""
     rest = np.ascontiguousarray(rest, dtype=np.float64)
     if config.node_spacing > 0:
         keys = np.floor((rest - rest.min(0)) / config.node_spacing).astype(np.int64)
@@ -187,10 +189,10 @@ def _geodesic_filter(rest: np.ndarray, nodes: np.ndarray, edges: np.ndarray,
                      ratio: float, k: int = 8) -> np.ndarray:
     """Node edges ``(E, 2)`` whose geodesic length (shortest path over the k-NN graph of the
     rest points, neighbours within twice the median k-th neighbour distance) is at most
-    ``ratio`` times their
-    Euclidean length, plus edges between nodes the graph does not connect."""
+    ``ratio`` times their Euclidean length, plus edges between nodes the graph does not
+    connect (fragments)."""
     from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import dijkstra
+    from scipy.sparse.csgraph import connected_components, dijkstra
 
     M = len(rest)
     tree = cKDTree(rest)
@@ -204,19 +206,12 @@ def _geodesic_filter(rest: np.ndarray, nodes: np.ndarray, edges: np.ndarray,
     eu = np.linalg.norm(nodes[edges[:, 0]] - nodes[edges[:, 1]], axis=1)
     src = np.unique(edges[:, 0])
     geo = dijkstra(G, directed=False, indices=node_pt[src], limit=ratio * float(eu.max()) + 1e-12)
-    row_of = {int(s): n for n, s in enumerate(src)}
-    g = geo[[row_of[int(a)] for a in edges[:, 0]], node_pt[edges[:, 1]]]
+    g = geo[np.searchsorted(src, edges[:, 0]), node_pt[edges[:, 1]]]
     # unreachable within the limit: a separate fragment (keep) or a long detour (drop)
-    comp = _components(G)
+    comp = connected_components(G, directed=False)[1]
     same = comp[node_pt[edges[:, 0]]] == comp[node_pt[edges[:, 1]]]
     keep = (g <= ratio * eu + 1e-12) | ~same
     return edges[keep]
-
-
-def _components(G) -> np.ndarray:
-    from scipy.sparse.csgraph import connected_components
-
-    return connected_components(G, directed=False)[1]
 
 
 def cache_key(seq: PointSequence, config: RegistrationConfig) -> str:
