@@ -146,10 +146,10 @@ def build_graph(rest: np.ndarray, config: RegistrationConfig) -> DeformationGrap
     if config.node_spacing > 0:
         keys = np.floor((rest - rest.min(0)) / config.node_spacing).astype(np.int64)
         _, first = np.unique(keys, axis=0, return_index=True)
-        nodes = rest[np.sort(first)]
+        node_idx = np.sort(first)
     else:
-        nodes = rest[farthest_point_sampling(rest, min(config.n_nodes, len(rest)), config.seed)]
-    nodes = np.ascontiguousarray(nodes)
+        node_idx = farthest_point_sampling(rest, min(config.n_nodes, len(rest)), config.seed)
+    nodes = np.ascontiguousarray(rest[node_idx])
     j = len(nodes)
     k = max(1, min(config.k_point_nodes, j))
     tree = cKDTree(nodes)
@@ -173,7 +173,8 @@ def build_graph(rest: np.ndarray, config: RegistrationConfig) -> DeformationGrap
         edges = np.stack([src, dst], axis=1)
         edges = edges[edges[:, 0] != edges[:, 1]]
         if config.node_geodesic_ratio > 0 and len(edges):
-            edges = _geodesic_filter(rest, nodes, edges, config.node_geodesic_ratio)
+            edges = _geodesic_filter(rest, np.asarray(node_idx), edges,
+                                     config.node_geodesic_ratio)
     else:
         edges = np.zeros((0, 2), dtype=np.int64)
     return DeformationGraph(
@@ -185,31 +186,28 @@ def build_graph(rest: np.ndarray, config: RegistrationConfig) -> DeformationGrap
     )
 
 
-def _geodesic_filter(rest: np.ndarray, nodes: np.ndarray, edges: np.ndarray,
+def _geodesic_filter(rest: np.ndarray, node_idx: np.ndarray, edges: np.ndarray,
                      ratio: float, k: int = 8) -> np.ndarray:
-    """Node edges ``(E, 2)`` whose geodesic length (shortest path over the k-NN graph of the
-    rest points, neighbours within twice the median k-th neighbour distance) is at most
-    ``ratio`` times their Euclidean length, plus edges between nodes the graph does not
-    connect (fragments)."""
+    """Node edges ``(E, 2)`` (nodes are the rest points ``node_idx``) whose geodesic length
+    (shortest path over the k-NN graph of the rest points, neighbours within twice the median
+    k-th neighbour distance) is at most ``ratio`` times their Euclidean length, plus edges
+    between nodes the graph does not connect (fragments)."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components, dijkstra
 
     M = len(rest)
-    tree = cKDTree(rest)
-    d, idx = tree.query(rest, k=min(k + 1, M))
+    d, idx = cKDTree(rest).query(rest, k=min(k + 1, M))
     d, idx = d[:, 1:], idx[:, 1:]
-    r = 2.0 * float(np.median(d[:, -1]))
-    ok = d <= r
-    rows = np.repeat(np.arange(M), d.shape[1])[ok.ravel()]
-    G = coo_matrix((d.ravel()[ok.ravel()], (rows, idx.ravel()[ok.ravel()])), shape=(M, M)).tocsr()
-    node_pt = tree.query(nodes)[1]
-    eu = np.linalg.norm(nodes[edges[:, 0]] - nodes[edges[:, 1]], axis=1)
+    ok = (d <= 2.0 * float(np.median(d[:, -1]))).ravel()
+    rows = np.repeat(np.arange(M), d.shape[1])[ok]
+    G = coo_matrix((d.ravel()[ok], (rows, idx.ravel()[ok])), shape=(M, M)).tocsr()
+    eu = np.linalg.norm(rest[node_idx[edges[:, 0]]] - rest[node_idx[edges[:, 1]]], axis=1)
     src = np.unique(edges[:, 0])
-    geo = dijkstra(G, directed=False, indices=node_pt[src], limit=ratio * float(eu.max()) + 1e-12)
-    g = geo[np.searchsorted(src, edges[:, 0]), node_pt[edges[:, 1]]]
+    geo = dijkstra(G, directed=False, indices=node_idx[src], limit=ratio * float(eu.max()) + 1e-12)
+    g = geo[np.searchsorted(src, edges[:, 0]), node_idx[edges[:, 1]]]
     # unreachable within the limit: a separate fragment (keep) or a long detour (drop)
     comp = connected_components(G, directed=False)[1]
-    same = comp[node_pt[edges[:, 0]]] == comp[node_pt[edges[:, 1]]]
+    same = comp[node_idx[edges[:, 0]]] == comp[node_idx[edges[:, 1]]]
     keep = (g <= ratio * eu + 1e-12) | ~same
     return edges[keep]
 
