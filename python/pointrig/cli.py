@@ -13,7 +13,7 @@ import logging
 import sys
 from collections.abc import Sequence
 
-from .errors import PointrigError
+from .errors import ConfigError, PointrigError
 
 __all__ = ["main", "build_parser"]
 
@@ -112,13 +112,22 @@ def _config_from_args(args: argparse.Namespace):
 
 def _read_configured(args: argparse.Namespace, cfg):
     from .io import read_sequence
+    from .preprocess import remove_background
 
     pre = cfg.preprocess
-    return read_sequence(
+    if pre.background not in ("auto", "keep"):
+        raise ConfigError(f"[preprocess] background must be 'auto' or 'keep', got {pre.background!r}")
+    seq = read_sequence(
         args.input, start=pre.frame_start, stop=pre.frame_stop, stride=pre.frame_stride,
         crop_min=pre.crop_min, crop_max=pre.crop_max, voxel_size=pre.voxel_size,
         intrinsics=args.intrinsics, scale=args.scale, min_points=pre.min_points,
     )
+    if pre.background == "auto":
+        seq, report = remove_background(seq, seed=cfg.registration.seed,
+                                        threshold=pre.background_threshold)
+        if report.planes:
+            print(f"[background] {report.summary()}", file=sys.stderr)
+    return seq
 
 
 def _summary_line(res, out) -> str:
@@ -192,8 +201,6 @@ def cmd_synth(args: argparse.Namespace) -> int:
         print("or a rigged, animated .glb/.gltf file")
         return 0
     if args.source is None or args.output is None:
-        from .errors import ConfigError
-
         raise ConfigError("give a SOURCE (figure name or .glb/.gltf) and -o OUTPUT")
     seq = synthesize(
         args.source, n_frames=args.frames, seed=args.seed, camera=Camera.kinect(args.resolution),

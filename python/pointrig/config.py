@@ -44,6 +44,13 @@ class PreprocessConfig:
     frame_stop: int | None = None
     frame_stride: int = 1
     min_points: int = 50  # fewer points in a frame is an error
+    # "auto": remove static floor / wall planes found in the sequence (and the speckle they
+    # leave) before step 1; a plane must be static, have the rest of the scene in front of it
+    # and reach well past the subject, so an already cropped recording is left unchanged
+    # (pointrig.preprocess.remove_background). "keep": use the points as read (paper §3 crops
+    # by hand: crop_min / crop_max)
+    background: str = "auto"
+    background_threshold: float = 0.03  # RANSAC inlier distance of the plane search, metres
 
 
 @dataclass(frozen=True)
