@@ -116,7 +116,8 @@ def _read_configured(args: argparse.Namespace, cfg):
 
     pre = cfg.preprocess
     if pre.background not in ("auto", "keep"):
-        raise ConfigError(f"[preprocess] background must be 'auto' or 'keep', got {pre.background!r}")
+        raise ConfigError(
+            f"[preprocess] background must be 'auto' or 'keep', got {pre.background!r}")
     seq = read_sequence(
         args.input, start=pre.frame_start, stop=pre.frame_stop, stride=pre.frame_stride,
         crop_min=pre.crop_min, crop_max=pre.crop_max, voxel_size=pre.voxel_size,

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .errors import InputError
+from .errors import EmptyFrameError, InputError
 
 if TYPE_CHECKING:
     from .sequence import PointSequence
@@ -236,8 +236,8 @@ def find_background_planes(
       frame too (a moving subject's flat part changes place);
     * the rest of the scene is in front of it: at least ``min_front`` of the points off all
       candidate planes (and farther than twice its band and ``8 * threshold`` from it) lie on
-      the camera's side (a floor or wall is behind or under the
-      subject; a flat part of a subject has the subject's other parts behind it);
+      the camera's side (a floor or wall is behind or under the subject; a flat part of a
+      subject has the subject's other parts behind it);
     * it is large: its in-plane extent (5th-95th percentile, longer axis) is at least
       ``span_ratio`` times the subject's extent (bounding-box diagonal of the largest
       connected piece of what the static, in-front planes leave, median over the sampled
@@ -302,7 +302,6 @@ def find_background_planes(
         vals, counts = np.unique(b, return_counts=True)
         layer = np.isin(b, vals[counts >= 0.05 * inl.sum()])
         if layer.any():
-            inl = inl.copy()
             inl[np.flatnonzero(near)[layer]] = True
             left &= ~inl
             merged[k] = (normal, offset, inl)
@@ -351,7 +350,8 @@ def find_background_planes(
     subject_extent = float(np.median(extents)) if extents else 0.0
     planes = []
     for pl, front in zip(cands, fronts):
-        ok = pl.static >= min_static and front >= min_front and pl.span >= span_ratio * subject_extent
+        ok = (pl.static >= min_static and front >= min_front
+              and pl.span >= span_ratio * subject_extent)
         log.debug("background candidate: normal %s, %.0f%% of points, span %.2f m (subject "
                   "%.2f m), static %.2f, in front %.3f -> %s", np.round(pl.normal, 3),
                   100 * pl.fraction, pl.span, subject_extent, pl.static, front,
@@ -395,9 +395,9 @@ def remove_background(seq: "PointSequence", *, seed: int = 0,
     point clear of the planes within 3 spacings), and then, in each frame, the points that
     are neither in the largest connected piece (neighbours within 10 times the median point
     spacing: depth quantisation opens gaps of several spacings on sloped surfaces; size =
-    its points farther than twice the band from every plane) nor within 10 % of its size of it: leftover plane speckle and far clutter. When
-    no plane passes the tests the sequence is returned unchanged, so a recording that is
-    already cropped is never touched.
+    its points farther than twice the band from every plane) nor within 10 % of its size of
+    it: leftover plane speckle and far clutter. When no plane passes the tests the sequence is
+    returned unchanged, so a recording that is already cropped is never touched.
 
     Parameters
     ----------
@@ -417,7 +417,6 @@ def remove_background(seq: "PointSequence", *, seed: int = 0,
     EmptyFrameError
         If a frame has fewer than 10 points left (naming the frame).
     """
-    from .errors import EmptyFrameError
     from .sequence import PointSequence
 
     planes, cand = find_background_planes(seq.frames, seed=seed, **plane_options)
