@@ -166,6 +166,15 @@ class BackgroundReport:
                 f"fragments: {100 * float(np.mean(self.removed_fraction)):.0f}% of the points")
 
 
+def _band_distance(planes: list[BackgroundPlane], points: np.ndarray) -> np.ndarray:
+    """Distance ``(N,)`` of ``points (N, 3)`` to the nearest plane in units of that plane's
+    band (< 1 = inside a band; ``inf`` without planes)."""
+    out = np.full(len(points), np.inf)
+    for pl in planes:
+        out = np.minimum(out, pl.distance(points) / pl.band)
+    return out
+
+
 def _fit_plane(p: np.ndarray) -> tuple[np.ndarray, float]:
     """Least-squares plane of ``p (n, 3)``: unit normal and offset."""
     c = p.mean(axis=0)
@@ -335,10 +344,8 @@ def find_background_planes(
                                      fraction=float(inl.mean()), span=span, static=static))
         fronts.append(front)
     # the subject: the largest connected piece of what the static, in-front planes leave
-    rel = np.full(total, np.inf)  # distance to the nearest static, in-front plane / its band
-    for pl, front in zip(cands, fronts):
-        if pl.static >= min_static and front >= min_front:
-            rel = np.minimum(rel, pl.distance(pool) / pl.band)
+    rel = _band_distance([pl for pl, front in zip(cands, fronts)
+                          if pl.static >= min_static and front >= min_front], pool)
     extents = []  # per sampled frame (a walking subject's pooled extent is the whole walk)
     for k in range(len(picks)):
         sel = (rel >= 1.0) & (which == k)
@@ -424,7 +431,7 @@ def remove_background(seq: "PointSequence", *, seed: int = 0,
         return seq, BackgroundReport([], np.zeros(seq.n_frames), cand)
     out, removed = [], []
     for i, pts in enumerate(seq.frames):
-        dist = np.min([pl.distance(pts) / pl.band for pl in planes], axis=0)
+        dist = _band_distance(planes, pts)
         sub, dist = pts[dist >= 1.0], dist[dist >= 1.0]
         if len(sub) >= 10:
             spacing = float(np.median(cKDTree(sub).query(sub, k=2)[0][:, 1]))
