@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from pointrig import _core
 from pointrig.config import StructureConfig
-from pointrig.errors import FormatError, InputError
+from pointrig.errors import ConfigError, FormatError, InputError
 from pointrig.structure import (
     StructureResult,
     eq15_weights,
@@ -303,3 +303,55 @@ def test_small_swings_of_long_limbs_are_kept_by_the_displacement_gate(seed):
     tiny = extract_structure(seq["rest"], seq["points"],
                              StructureConfig(merge_rule="both", single_view="no"))
     assert tiny.n_bones == 1
+
+
+def test_max_frame_distance_matches_brute_force():
+    from pointrig.structure import _max_frame_distance
+
+    rng = np.random.default_rng(5)
+    Y = rng.normal(size=(7, 40, 3))
+    idx = rng.integers(0, 40, (40, 6))
+    direct = np.linalg.norm(Y[:, idx] - Y[:, :, None], axis=3).max(axis=0)
+    np.testing.assert_allclose(_max_frame_distance(Y, idx), direct, rtol=1e-12)
+
+
+def _plates(n_frames: int = 12):
+    """Three 40 x 8 cm plates 2 cm apart in the rest pose (grid spacing 1 cm): A static at
+    y = 0, B continuing A along x and turning about their shared edge (a joint), C below A at
+    y = -2 cm moving away from it (it only touched A in the rest pose). Returns Q, Y, labels."""
+    xs, zs = np.meshgrid(np.arange(0.0, 0.40, 0.01), np.arange(0.0, 0.08, 0.01))
+    plate = np.c_[xs.ravel(), np.zeros(xs.size), zs.ravel()]
+    A = plate.copy()
+    B = plate + [0.41, 0.0, 0.0]
+    C = plate + [0.0, -0.02, 0.0]
+    Q = np.vstack([A, B, C])
+    labels = np.repeat([0, 1, 2], len(plate))
+    frames = []
+    for t in range(n_frames):
+        s = t / (n_frames - 1)
+        Rb = Rotation.from_euler("z", 60.0 * s, degrees=True).as_matrix()
+        Rc = Rotation.from_euler("x", 20.0 * s, degrees=True).as_matrix()
+        frames.append(np.vstack([A, (B - [0.40, 0, 0]) @ Rb.T + [0.40, 0, 0],
+                                 C @ Rc.T + [0.0, -0.25 * s, 0.05 * s]]))
+    return Q, np.ascontiguousarray(frames), labels
+
+
+def test_parts_touching_only_in_the_rest_pose_are_not_neighbours():
+    """C lies against A in the rest pose and then moves away: with space-time neighbourhoods
+    (default) A-C is not a touching pair, A-B (a joint) still is; rest-pose neighbourhoods
+    (neighbor_stretch = 0, the paper) count A-C as touching."""
+    from pointrig.structure import _Ctx, _touch_pairs
+
+    Q, Y, labels = _plates()
+    cfg = StructureConfig()
+    assert cfg.neighbor_stretch > 0
+    touching = _touch_pairs(_Ctx(Q, Y, cfg), labels, cfg.touch_min_pairs)
+    assert (0, 1) in touching and (0, 2) not in touching
+    rest_only = StructureConfig(neighbor_stretch=0.0)
+    touching = _touch_pairs(_Ctx(Q, Y, rest_only), labels, cfg.touch_min_pairs)
+    assert (0, 1) in touching and (0, 2) in touching
+    # the stricter graph neighbourhood follows the same rule
+    strict = _touch_pairs(_Ctx(Q, Y, cfg), labels, 1, strict=True)
+    assert (0, 1) in strict and (0, 2) not in strict
+    with pytest.raises(ConfigError, match="neighbor_stretch"):
+        extract_structure(Q, Y, StructureConfig(neighbor_stretch=0.5))

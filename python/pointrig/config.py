@@ -155,6 +155,13 @@ class StructureConfig:
     # vote_guard_ratio times the point's best candidate residual (0 = unguarded vote, as in §5.2)
     vote_guard_ratio: float = 2.0
     post_merge_rounds: int = 3  # fit / relabel / vote rounds after each refinement pass
+    # space-time neighbourhoods (our deviation, docs/structure.md "Session 12"): a rest-pose
+    # neighbour counts (ball, candidates, touching test) only if the two points stay within
+    # neighbor_stretch times their rest distance (at least the ball radius; for the graph
+    # neighbours of graph_radius_ratio the rest distance itself) in every frame. Parts that
+    # merely touch in the rest pose (an arm resting on the thigh) then neither vote for
+    # each other nor count as touching. 0 = rest-pose neighbourhoods only (the paper)
+    neighbor_stretch: float = 2.0
 
     # --- bone graph (§5.3) ---
     touch_min_pairs: int = 3  # two bones touch if >= this many neighbour pairs straddle them

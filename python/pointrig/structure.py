@@ -272,6 +272,11 @@ class _Ctx:
         # stricter neighbourhood for the bone-graph edges (§5.3): a few point spacings
         spacing = float(np.median(dist[:, 0])) if dist.size else 0.0
         self.nbr_graph = np.where(dist <= cfg.graph_radius_ratio * spacing, idx, -1)
+        if cfg.neighbor_stretch > 0 and self.F > 1 and idx.size:
+            stretch = _max_frame_distance(Y, idx)
+            self.nbr = np.where(stretch <= cfg.neighbor_stretch * np.maximum(dist, radius),
+                                self.nbr, -1)
+            self.nbr_graph = np.where(stretch <= cfg.neighbor_stretch * dist, self.nbr_graph, -1)
         self.radius = radius
         self.centroid = Q.mean(axis=0)
         self.rms_radius = float(np.sqrt(((Q - self.centroid) ** 2).sum(1).mean()))
@@ -279,6 +284,28 @@ class _Ctx:
 
     def fit(self, labels: np.ndarray, B: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return fit_bones(self.Q, self.Y, labels, B)
+
+
+def _max_frame_distance(Y: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """Largest distance over frames between each point and each of its neighbours.
+
+    Parameters
+    ----------
+    Y
+        ``(F, M, 3)`` registered points, metres.
+    idx
+        ``(M, k)`` neighbour indices into the ``M`` points.
+
+    Returns
+    -------
+    np.ndarray
+        ``(M, k)`` ``max_t |y_m^t - y_idx[m, i]^t|``, metres (one frame at a time: memory
+        ``M k``).
+    """
+    out = np.zeros(idx.shape)
+    for y in Y:
+        np.maximum(out, np.linalg.norm(y[idx] - y[:, None, :], axis=2), out=out)
+    return out
 
 
 def _compact(labels: np.ndarray) -> tuple[np.ndarray, int]:
@@ -789,6 +816,9 @@ def _check_inputs(rest_points: np.ndarray, points: np.ndarray, cfg: StructureCon
         raise ConfigError("structure: merge_displacement must be > 0 (fraction of the size)")
     if not 0 <= cfg.view_depth_quantile <= 1:
         raise ConfigError("structure: view_depth_quantile must be in [0, 1]")
+    if not (cfg.neighbor_stretch == 0 or cfg.neighbor_stretch >= 1):
+        raise ConfigError("structure: neighbor_stretch must be 0 (off) or >= 1 "
+                          f"(a factor on the rest distance), got {cfg.neighbor_stretch!r}")
     if cfg.single_view not in ("auto", "yes", "no"):
         raise ConfigError(f"structure: single_view must be 'auto', 'yes' or 'no', "
                           f"got {cfg.single_view!r}")
