@@ -157,8 +157,8 @@ class StructureConfig:
     post_merge_rounds: int = 3  # fit / relabel / vote rounds after each refinement pass
     # space-time neighbourhoods (our deviation, docs/structure.md "Session 12"): a rest-pose
     # neighbour counts (ball, candidates, touching test) only if the two points stay within
-    # neighbor_stretch times their rest distance (at least the ball radius; for the graph
-    # neighbours of graph_radius_ratio the rest distance itself) in every frame. Parts that
+    # neighbor_stretch times the ball radius (for the graph neighbours of graph_radius_ratio:
+    # times their rest distance) in every frame. Parts that
     # merely touch in the rest pose (an arm resting on the thigh) then neither vote for
     # each other nor count as touching. 0 = rest-pose neighbourhoods only (the paper)
     neighbor_stretch: float = 2.0

@@ -274,8 +274,7 @@ class _Ctx:
         self.nbr_graph = np.where(dist <= cfg.graph_radius_ratio * spacing, idx, -1)
         if cfg.neighbor_stretch > 0 and self.F > 1 and idx.size:
             stretch = _max_frame_distance(Y, idx)
-            self.nbr = np.where(stretch <= cfg.neighbor_stretch * np.maximum(dist, radius),
-                                self.nbr, -1)
+            self.nbr = np.where(stretch <= cfg.neighbor_stretch * radius, self.nbr, -1)
             self.nbr_graph = np.where(stretch <= cfg.neighbor_stretch * dist, self.nbr_graph, -1)
         self.radius = radius
         self.centroid = Q.mean(axis=0)
