@@ -158,9 +158,9 @@ class StructureConfig:
     # space-time neighbourhoods (our deviation, docs/structure.md "Session 12"): a rest-pose
     # neighbour counts (ball, candidates, touching test) only if the two points stay within
     # neighbor_stretch times the ball radius (for the graph neighbours of graph_radius_ratio:
-    # times their rest distance) in every frame. Parts that
-    # merely touch in the rest pose (an arm resting on the thigh) then neither vote for
-    # each other nor count as touching. 0 = rest-pose neighbourhoods only (the paper)
+    # times their rest distance) in every frame. Parts that merely touch in the rest pose (an
+    # arm resting on the thigh) then neither vote for each other nor count as touching.
+    # 0 = rest-pose neighbourhoods only (the paper)
     neighbor_stretch: float = 2.0
 
     # --- bone graph (§5.3) ---

@@ -817,7 +817,7 @@ def _check_inputs(rest_points: np.ndarray, points: np.ndarray, cfg: StructureCon
         raise ConfigError("structure: view_depth_quantile must be in [0, 1]")
     if not (cfg.neighbor_stretch == 0 or cfg.neighbor_stretch >= 1):
         raise ConfigError("structure: neighbor_stretch must be 0 (off) or >= 1 "
-                          f"(a factor on the rest distance), got {cfg.neighbor_stretch!r}")
+                          f"(a factor on the ball radius), got {cfg.neighbor_stretch!r}")
     if cfg.single_view not in ("auto", "yes", "no"):
         raise ConfigError(f"structure: single_view must be 'auto', 'yes' or 'no', "
                           f"got {cfg.single_view!r}")
