@@ -245,8 +245,6 @@ def test_relative_rotation_range_matches_scipy_and_ignores_the_rest_frame():
     """Oracle: the angle between the relative rotations of every two frames, by scipy; the
     statistic is unchanged when every bone's rotations are re-referenced to another rest pose
     (``R_b^t -> R_b^t A_b``), while the rest-referenced angle changes."""
-    from scipy.spatial.transform import Rotation
-
     from pointrig.structure import relative_rotation_angles, relative_rotation_range
 
     rng = np.random.default_rng(3)
@@ -345,13 +343,14 @@ def test_parts_touching_only_in_the_rest_pose_are_not_neighbours():
     Q, Y, labels = _plates()
     cfg = StructureConfig()
     assert cfg.neighbor_stretch > 0
-    touching = _touch_pairs(_Ctx(Q, Y, cfg), labels, cfg.touch_min_pairs)
+    ctx = _Ctx(Q, Y, cfg)
+    touching = _touch_pairs(ctx, labels, cfg.touch_min_pairs)
     assert (0, 1) in touching and (0, 2) not in touching
     rest_only = StructureConfig(neighbor_stretch=0.0)
     touching = _touch_pairs(_Ctx(Q, Y, rest_only), labels, cfg.touch_min_pairs)
     assert (0, 1) in touching and (0, 2) in touching
     # the stricter graph neighbourhood follows the same rule
-    strict = _touch_pairs(_Ctx(Q, Y, cfg), labels, 1, strict=True)
+    strict = _touch_pairs(ctx, labels, 1, strict=True)
     assert (0, 1) in strict and (0, 2) not in strict
     with pytest.raises(ConfigError, match="neighbor_stretch"):
         extract_structure(Q, Y, StructureConfig(neighbor_stretch=0.5))
