@@ -229,9 +229,14 @@ class StructureConfig:
 
     # --- single-view depth correction (our deviation, docs/structure.md) ---
     # one depth view sees only the near side of each part, so boundary centroids c~ lie in
-    # front of the joint: move each (not the root's centre) back along the camera ray to this
-    # quantile of its points' depths (silhouette points reach the part's axis depth); 0 = off
-    view_depth_quantile: float = 0.97
+    # front of the joint: move each (not the root's centre) back along the camera ray to the
+    # depth of the part's axis (pointrig.view.view_depth_correct). "width" (session 13): the
+    # (1 - q) quantile of its points' depths (the front) plus half their width across the view
+    # between the (1 - q) and q quantiles (the radius); "quantile" (session 6, with q = 0.97):
+    # the q quantile of the depths (silhouette points reach the axis depth, if the sensor keeps
+    # them). q = view_depth_quantile; 0 = off
+    view_depth_method: str = "width"
+    view_depth_quantile: float = 0.95
     camera_position: tuple[float, float, float] = (0.0, 0.0, 0.0)  # in the input frame, metres
     # "yes" (pointrig's input: one depth camera), "no" (fused or two-sided clouds: keep the
     # paper's centroids), "auto" (correct only if the rest points form one surface layer along

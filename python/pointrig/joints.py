@@ -380,7 +380,8 @@ def solve_joints_articulated(
 def _weight_crossing_prior(Q: np.ndarray, W: np.ndarray, parent: np.ndarray,
                            fallback: np.ndarray, min_mass: float = 0.5,
                            view_camera: np.ndarray | None = None,
-                           view_quantile: float = 0.0) -> np.ndarray:
+                           view_quantile: float = 0.0,
+                           view_method: str = "quantile") -> np.ndarray:
     """Prior joint targets where the blend weights of each edge cross: the centroid of the rest
     points weighted by ``w_mk * w_mp`` (child k, parent p), which peaks at ``w = 1/2``, moved
     back along the camera ray (:func:`pointrig.view.view_depth_correct`, weights ``w_mk w_mp``)
@@ -395,7 +396,8 @@ def _weight_crossing_prior(Q: np.ndarray, W: np.ndarray, parent: np.ndarray,
             out[k] = rho @ Q / rho.sum()
             if view_camera is not None:
                 on = rho > 0
-                out[k] = view_depth_correct(Q[on], rho[on], out[k], view_camera, view_quantile)
+                out[k] = view_depth_correct(Q[on], rho[on], out[k], view_camera, view_quantile,
+                                            view_method)
     return out
 
 
@@ -522,6 +524,7 @@ def learn_joints(
     # single-view depth correction chosen by step 2 (pointrig.view), applied to the prior too
     view_camera = getattr(structure, "view_camera", None)
     view_quantile = float(getattr(structure, "view_quantile", 0.0))
+    view_method = str(getattr(structure, "view_method", "quantile"))
 
     def skin_all(W_, R_, T_):
         idx, w = _dense_to_sparse(W_, K)
@@ -592,7 +595,8 @@ def learn_joints(
         # ---- bones (Eqs. 23-26) and joints (Eq. 20)
         if articulated and cfg.prior_from_weights:
             c_prior = _weight_crossing_prior(Q, W, parent, c_prior, view_camera=view_camera,
-                                             view_quantile=view_quantile)
+                                             view_quantile=view_quantile,
+                                             view_method=view_method)
         if articulated:
             joints, T = solve_joints_articulated(Q, W, R, a, z, parent, c_prior,
                                                  cfg.eta * cfg.joint_prior, T[:, root])

@@ -98,6 +98,9 @@ class StructureResult:
         correction to its joint prior.
     view_quantile
         The depth quantile of that correction (0 when off).
+    view_method
+        How that correction estimates the axis depth: ``"width"`` or ``"quantile"``
+        (:func:`pointrig.view.view_depth_correct`).
     """
 
     labels: np.ndarray
@@ -111,6 +114,7 @@ class StructureResult:
     diagnostics: dict[str, Any] = field(default_factory=dict)
     view_camera: np.ndarray | None = None
     view_quantile: float = 0.0
+    view_method: str = "quantile"
 
     @property
     def n_bones(self) -> int:
@@ -128,6 +132,7 @@ class StructureResult:
             view_camera=(np.full(3, np.nan) if self.view_camera is None
                          else np.asarray(self.view_camera, dtype=float)),
             view_quantile=np.float64(self.view_quantile),
+            view_method=np.array(self.view_method),
         )
 
     @classmethod
@@ -248,11 +253,13 @@ def _pair_axes(Q: np.ndarray, labels: np.ndarray, pairs: list[tuple[int, int]]) 
 
 
 def _load_view(z: Any) -> dict[str, Any]:
-    """``view_camera`` / ``view_quantile`` of a saved result (absent in older files: off)."""
+    """``view_camera`` / ``view_quantile`` / ``view_method`` of a saved result (absent in
+    older files: off; files before session 13 used the ``"quantile"`` method)."""
+    method = str(z["view_method"]) if "view_method" in z else "quantile"
     if "view_camera" not in z or not np.all(np.isfinite(z["view_camera"])):
-        return {"view_camera": None, "view_quantile": 0.0}
+        return {"view_camera": None, "view_quantile": 0.0, "view_method": method}
     return {"view_camera": np.asarray(z["view_camera"], dtype=float),
-            "view_quantile": float(z["view_quantile"])}
+            "view_quantile": float(z["view_quantile"]), "view_method": method}
 
 
 class _Ctx:
@@ -663,7 +670,8 @@ def _boundary_centroids(ctx: _Ctx, labels: np.ndarray, parent: np.ndarray,
             out[k] = ctx.Q[sel].mean(0)
             if view_camera is not None:
                 out[k] = view_depth_correct(ctx.Q[sel], None, out[k], view_camera,
-                                            ctx.cfg.view_depth_quantile)
+                                            ctx.cfg.view_depth_quantile,
+                                            ctx.cfg.view_depth_method)
         else:
             out[k] = _closest_pair(ctx, labels, k, p)[1]
     return out
@@ -815,6 +823,9 @@ def _check_inputs(rest_points: np.ndarray, points: np.ndarray, cfg: StructureCon
         raise ConfigError("structure: merge_displacement must be > 0 (fraction of the size)")
     if not 0 <= cfg.view_depth_quantile <= 1:
         raise ConfigError("structure: view_depth_quantile must be in [0, 1]")
+    if cfg.view_depth_method not in ("width", "quantile"):
+        raise ConfigError(f"structure: view_depth_method must be 'width' or 'quantile', "
+                          f"got {cfg.view_depth_method!r}")
     if not (cfg.neighbor_stretch == 0 or cfg.neighbor_stretch >= 1):
         raise ConfigError("structure: neighbor_stretch must be 0 (off) or >= 1 "
                           f"(a factor on the ball radius), got {cfg.neighbor_stretch!r}")
@@ -918,7 +929,7 @@ def extract_structure(rest_points: np.ndarray, points: np.ndarray,
                            c_tilde=c_tilde, root=root, rest_points=Q, diagnostics=diag,
                            view_camera=view_camera,
                            view_quantile=cfg.view_depth_quantile if view_camera is not None
-                           else 0.0)
+                           else 0.0, view_method=cfg.view_depth_method)
 
 
 def _view_camera(Q: np.ndarray, cfg: StructureConfig, diag: dict[str, Any]) -> np.ndarray | None:
