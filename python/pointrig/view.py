@@ -2,14 +2,14 @@
 
 Step 2's boundary centroids ``c~`` (Eq. 20) and step 3's joint prior are averages of *visible*
 rest points, so on single-view data they sit on the near surface, in front of the joint by a
-fraction of the part's thickness. For a part with a convex cross-section, the silhouette points
-(where the surface turns away from the camera) lie at about the depth of the cross-section's
-centre, so the joint's depth along the ray is estimated by a high quantile of the depths of the
-points that define ``c~``; :func:`view_depth_correct` moves ``c~`` back along the ray to it
-(never towards the camera). :func:`two_layer_fraction` tells single-view input (one surface
-layer along every ray from the camera) from two-sided or fused input, where the correction
-must stay off. docs/structure.md ("Single-view depth correction") has the derivation and the
-ablation.
+fraction of the part's thickness. :func:`view_depth_correct` moves ``c~`` back along the ray
+(never towards the camera) to an estimate of the depth of the part's axis: by default the front
+depth of the points that define ``c~`` plus half their width across the view (the radius of a
+round cross-section); the session-6 rule, a high quantile of their depths (silhouette points
+reach the axis depth), falls short when the sensor loses the grazing silhouette.
+:func:`two_layer_fraction` tells single-view input (one surface layer along every ray from the
+camera) from two-sided or fused input, where the correction must stay off. docs/structure.md
+("Session 6" and "Session 13") has the derivations and the ablations.
 
 Units: metres. The camera position is in the input frame (the origin for camera-frame clouds).
 """
