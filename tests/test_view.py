@@ -80,48 +80,53 @@ def test_depth_correct_weighted_quantile_matches_repeated_points():
 
 def _grazing_cut_ring(depth: float, radius: float, length: float, n: int, theta_max: float,
                       rng) -> np.ndarray:
-    """A short cylinder along x, axis through (0, 0, depth), sampled on the side facing a camera
-    at the origin up to the viewing angle ``theta_max`` (radians): a depth sensor loses the
-    grazing points near the silhouette first."""
-    theta = rng.uniform(-theta_max, theta_max, n)
+    """A short cylinder along x, axis through (0, 0, depth), as a depth camera at the origin
+    samples it: uniformly in the image, i.e. uniformly in the lateral coordinate
+    ``y = r sin(theta)``, up to the viewing angle ``theta_max`` (radians; the sensor loses the
+    grazing points near the silhouette first)."""
+    a = radius * np.sin(theta_max)
+    y = rng.uniform(-a, a, n)
     x = rng.uniform(-length / 2, length / 2, n)
-    return np.stack([x, radius * np.sin(theta), depth - radius * np.cos(theta)], 1)
+    return np.stack([x, y, depth - np.sqrt(radius ** 2 - y ** 2)], 1)
 
 
-@pytest.mark.parametrize("theta_deg", [70.0, 85.0])
-def test_width_method_reaches_the_axis_when_the_silhouette_is_lost(theta_deg):
+@pytest.mark.parametrize("theta_deg", [90.0, 70.0])
+def test_width_method_finds_the_axis_of_an_image_sampled_ring(theta_deg):
     rng = np.random.default_rng(7)
     depth, r, q = 2.0, 0.06, 0.95
-    tm = np.radians(theta_deg)
-    pts = _grazing_cut_ring(depth, r, 0.3 * r, 20000, tm, rng)
+    a = r * np.sin(np.radians(theta_deg))  # half-width of what the sensor keeps
+    pts = _grazing_cut_ring(depth, r, 0.3 * r, 40000, np.radians(theta_deg), rng)
     c = pts.mean(0)
     u = c / np.linalg.norm(c)
     width = view_depth_correct(pts, None, c, np.zeros(3), q, method="width")
     quant = view_depth_correct(pts, None, c, np.zeros(3), q, method="quantile")
     assert np.linalg.norm(np.cross(width - c, u)) < 1e-12  # along the ray only
-    # closed forms for theta uniform on [-tm, tm]: the (1 - q) depth quantile is
-    # depth - r cos(tm (1 - q)), the q quantile across the view r sin(tm (2q - 1)), and the
-    # q depth quantile depth - r cos(tm q)
-    expect_width = depth - r * np.cos(tm * (1 - q)) + r * np.sin(tm * (2 * q - 1))
-    expect_quant = depth - r * np.cos(tm * q)
+    # closed forms with y uniform on [-a, a]: the (1 - q) depth quantile is at |y| = (1 - q) a,
+    # the spread between the y quantiles is 2 (2q - 1) a, and the q depth quantile is at
+    # |y| = q a
+    expect_width = depth - np.sqrt(r ** 2 - ((1 - q) * a) ** 2) + a
+    expect_quant = depth - np.sqrt(r ** 2 - (q * a) ** 2)
     assert width @ u == pytest.approx(expect_width, abs=0.02 * r)
     assert quant @ u == pytest.approx(expect_quant, abs=0.02 * r)
-    # losing the silhouette costs the width estimate far less than the depth quantile
-    assert abs(width @ u - depth) < 0.15 * r
-    if theta_deg == 70.0:
-        assert abs(quant @ u - depth) > 0.3 * r
+    if theta_deg == 90.0:
+        # the whole visible half: unbiased, where the depth quantile stays 0.3 r in front
+        assert abs(width @ u - depth) < 0.03 * r
+        assert depth - quant @ u > 0.25 * r
+    else:
+        # losing the silhouette costs the width estimate far less than the depth quantile
+        assert abs(width @ u - depth) < 0.1 * r
+        assert depth - quant @ u > 0.4 * r
 
 
-def test_width_method_never_moves_towards_camera_and_rejects_unknown_methods():
+def test_width_method_never_moves_towards_camera_and_rejects_bad_arguments():
     rng = np.random.default_rng(8)
     pts = _grazing_cut_ring(1.5, 0.05, 0.02, 500, np.radians(80), rng)
     behind = pts.mean(0) + np.array([0.0, 0.0, 0.5])
     np.testing.assert_array_equal(
         view_depth_correct(pts, None, behind, np.zeros(3), 0.95, method="width"), behind)
-    # a quantile below 1/2 is read as 1 - quantile
     c = pts.mean(0)
-    np.testing.assert_allclose(view_depth_correct(pts, None, c, np.zeros(3), 0.05, "width"),
-                               view_depth_correct(pts, None, c, np.zeros(3), 0.95, "width"))
+    with pytest.raises(ValueError, match="quantile > 1/2"):
+        view_depth_correct(pts, None, c, np.zeros(3), 0.5, method="width")
     with pytest.raises(ValueError, match="unknown method"):
         view_depth_correct(pts, None, c, np.zeros(3), 0.95, method="sideways")
 
@@ -207,6 +212,7 @@ def test_structure_rejects_bad_view_parameters():
     rng = np.random.default_rng(5)
     q, Y = _two_bone_sequence(True, rng)
     for bad in ({"view_depth_quantile": 1.5}, {"single_view": "maybe"},
-                {"camera_position": (0.0, float("nan"), 0.0)}, {"view_depth_method": "sideways"}):
+                {"camera_position": (0.0, float("nan"), 0.0)}, {"view_depth_method": "sideways"},
+                {"view_depth_quantile": 0.4}):
         with pytest.raises(ConfigError):
             extract_structure(q, Y, StructureConfig(**bad))

@@ -231,8 +231,9 @@ class StructureConfig:
     # one depth view sees only the near side of each part, so boundary centroids c~ lie in
     # front of the joint: move each (not the root's centre) back along the camera ray to the
     # depth of the part's axis (pointrig.view.view_depth_correct). "width" (session 13): the
-    # (1 - q) quantile of its points' depths (the front) plus half their width across the view
-    # between the (1 - q) and q quantiles (the radius); "quantile" (session 6, with q = 0.97):
+    # (1 - q) quantile of its points' depths (the front) plus the radius from their width
+    # across the view, (s_q - s_(1-q)) / (2 (2q - 1)) (unbiased for a round section sampled
+    # uniformly in the image; q > 1/2); "quantile" (session 6, with q = 0.97):
     # the q quantile of the depths (silhouette points reach the axis depth, if the sensor keeps
     # them). q = view_depth_quantile; 0 = off
     view_depth_method: str = "width"

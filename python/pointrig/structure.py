@@ -826,6 +826,9 @@ def _check_inputs(rest_points: np.ndarray, points: np.ndarray, cfg: StructureCon
     if cfg.view_depth_method not in ("width", "quantile"):
         raise ConfigError(f"structure: view_depth_method must be 'width' or 'quantile', "
                           f"got {cfg.view_depth_method!r}")
+    if cfg.view_depth_method == "width" and 0 < cfg.view_depth_quantile <= 0.5:
+        raise ConfigError("structure: view_depth_method 'width' needs view_depth_quantile "
+                          "above 1/2 (or 0 = off)")
     if not (cfg.neighbor_stretch == 0 or cfg.neighbor_stretch >= 1):
         raise ConfigError("structure: neighbor_stretch must be 0 (off) or >= 1 "
                           f"(a factor on the ball radius), got {cfg.neighbor_stretch!r}")
