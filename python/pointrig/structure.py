@@ -97,7 +97,7 @@ class StructureResult:
         (:mod:`pointrig.view`), or ``None`` when the correction is off; step 3 applies the same
         correction to its joint prior.
     view_quantile
-        The depth quantile of that correction (0 when off).
+        The quantile ``q`` of that correction (0 when off).
     view_method
         How that correction estimates the axis depth: ``"width"`` or ``"quantile"``
         (:func:`pointrig.view.view_depth_correct`).

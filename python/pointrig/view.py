@@ -4,9 +4,10 @@ Step 2's boundary centroids ``c~`` (Eq. 20) and step 3's joint prior are average
 rest points, so on single-view data they sit on the near surface, in front of the joint by a
 fraction of the part's thickness. :func:`view_depth_correct` moves ``c~`` back along the ray
 (never towards the camera) to an estimate of the depth of the part's axis: by default the front
-depth of the points that define ``c~`` plus half their width across the view (the radius of a
-round cross-section); the session-6 rule, a high quantile of their depths (silhouette points
-reach the axis depth), falls short when the sensor loses the grazing silhouette.
+depth of the points that define ``c~`` plus the radius of a round cross-section read from their
+spread across the view; the session-6 rule, a high quantile of their depths (silhouette points
+reach the axis depth), falls short because a depth camera samples the silhouette thinly and
+loses it first.
 :func:`two_layer_fraction` tells single-view input (one surface layer along every ray from the
 camera) from two-sided or fused input, where the correction must stay off. docs/structure.md
 ("Session 6" and "Session 13") has the derivations and the ablations.
@@ -128,7 +129,7 @@ def view_depth_correct(points: np.ndarray, weights: np.ndarray | None, centre: n
     """Move ``centre`` away from the camera to the estimated depth of its part's axis.
 
     Depth is measured along the unit ray ``u`` from ``camera`` through ``centre``. Two
-    estimates of the axis depth ``d_a`` (docs/structure.md, "Single-view depth correction"):
+    estimates of the axis depth ``d_a`` (docs/structure.md, sessions 6 and 13):
 
     * ``method="quantile"`` (session 6): the (weighted) ``quantile`` of the points' depths
       ``(p - camera) . u``. Points of a convex cross-section seen from one side reach back to
