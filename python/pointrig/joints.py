@@ -593,7 +593,9 @@ def learn_joints(
         idx, w = _dense_to_sparse(W, K)
 
         # ---- bones (Eqs. 23-26) and joints (Eq. 20)
-        if articulated and cfg.prior_from_weights:
+        if articulated and cfg.prior_from_weights and cfg.update_weights:
+            # W changes only with the weight updates: step 2's one-hot W has no crossing
+            # mass, so without them the prior stays c~ (already depth-corrected by step 2)
             c_prior = _weight_crossing_prior(Q, W, parent, c_prior, view_camera=view_camera,
                                              view_quantile=view_quantile,
                                              view_method=view_method)
