@@ -294,6 +294,19 @@ class JointsConfig:
     #   iteration (after min_iterations); 0 = the paper's energy criterion only
     min_iterations: int = 3
     bone_sweeps: int = 1  # bone-update sweeps per M-step (Eqs. 23-26)
+    # --- initial bone transforms (our deviation, docs/joints.md session 14) ---
+    # "track": before the EM, step 2's skeleton is tracked through the observed frames, frame
+    # by frame outwards from the rest frame (constant-velocity prediction, coarse-to-fine
+    # tau, joint-constrained bone updates against the raw points only), so the EM starts from
+    # bone motions that do not inherit step 1's sliding; "structure": step 2's per-bone Kabsch
+    # fits to the registered points (the paper)
+    init: str = "track"
+    track_iterations: int = 10  # EM iterations per frame of the tracking pass
+    track_velocity: float = 1.0  # constant-velocity prediction gain (0 = previous frame)
+    track_tau_max: float = 0.01  # cap of the per-frame starting tau, m^2 at 1.8 m (scaled)
+    track_anneal: float = 0.5  # coarse-to-fine: tau at most this x the previous until tau_init
+    track_from_structure: bool = True  # also fit each frame from step 2's pose of it and keep
+    #   the pose with the smaller symmetric chamfer misfit to the frame
     # --- truncated E-step (Eq. 4 restricted to near neighbours) ---
     estep_neighbors: int = 8  # nearest deformed points considered per observed point
     estep_radius_sigmas: float = 3.5  # ... and only within this many sqrt(tau^t)

@@ -45,7 +45,7 @@ from .kinematics import joint_trajectories, solve_joint_positions
 from .view import view_depth_correct
 
 __all__ = ["JointsResult", "StructureLike", "learn_joints", "e_step", "e_step_numpy",
-           "solve_joints_articulated"]
+           "solve_joints_articulated", "track_bones"]
 
 log = logging.getLogger(__name__)
 _N_THREADS = max(1, min(4, os.cpu_count() or 1))
@@ -374,6 +374,186 @@ def solve_joints_articulated(
     return joints, T
 
 
+# -------------------------------------------------------------------------- tracking
+
+
+def _fixed_joint_translations(R: np.ndarray, T_root: np.ndarray, joints: np.ndarray,
+                              parent: np.ndarray, X0_of: Callable[[np.ndarray], np.ndarray],
+                              a: np.ndarray | None, z: np.ndarray | None) -> np.ndarray:
+    """Chain translations ``(B, 3)`` of one frame with the joints held: every bone meets its
+    parent at its joint, and the root translation is the weighted mean offset
+    ``sum_m a_m (z_m - x0_m) / sum_m a_m`` of the targets ``z (M, 3)`` from the points
+    ``x0 = X0_of(T)`` skinned with zero root translation (kept at ``T_root`` if no weight)."""
+    T0 = chain_translations(R[None], np.zeros((1, 3)), joints, parent)[0]
+    if a is None or z is None or not float(a.sum()) > 0:
+        return T0 + T_root
+    X0 = X0_of(T0)
+    shift = (a[:, None] * (z - X0)).sum(0) / float(a.sum())
+    return T0 + shift
+
+
+def _predict_rigid(R1: np.ndarray, T1: np.ndarray, R0: np.ndarray, T0: np.ndarray,
+                   gain: float) -> tuple[np.ndarray, np.ndarray]:
+    """Constant-velocity prediction per bone ``(B, 3, 3)``, ``(B, 3)``: the last step
+    ``S = (R1, T1) o (R0, T0)^-1`` (``R_s = R1 R0^T``, ``T_s = T1 - R_s T0``) applied once more,
+    ``S o (R1, T1)``. ``gain`` scales the step's rotation vector and translation (exact for 1;
+    0 = no prediction, the last frame's transforms)."""
+    if gain <= 0:
+        return R1.copy(), T1.copy()
+    from scipy.spatial.transform import Rotation
+
+    Rs = np.einsum("bij,bkj->bik", R1, R0)
+    Ts = T1 - np.einsum("bij,bj->bi", Rs, T0)
+    if gain != 1.0:
+        Rs = Rotation.from_rotvec(Rotation.from_matrix(Rs).as_rotvec() * gain).as_matrix()
+        Ts = Ts * gain
+    return np.einsum("bij,bjk->bik", Rs, R1), np.einsum("bij,bj->bi", Rs, T1) + Ts
+
+
+def track_bones(
+    obs: Sequence[np.ndarray],
+    rest_points: np.ndarray,
+    structure: StructureLike,
+    rest_index: int,
+    config: JointsConfig,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Track step 2's skeleton through the observed frames (the ``init="track"`` start of
+    step 3).
+
+    Step 2's bone motions are Kabsch fits to step 1's registered points, so they carry the
+    registration's sliding along limbs and its lost fast limbs. Here the bones (step 2's
+    labels as one-hot weights, step 2's joints held fixed) are fitted to the raw points of
+    each frame in turn, outwards from the rest frame, each frame starting from the
+    constant-velocity prediction of its neighbours: EM with the posteriors of Eq. 4 (no
+    E_Register), joint-constrained bone rotations (the articulated sweep of Eqs. 23-26) and
+    the root translation, ``tau`` from ``4/3`` of the mean squared nearest-point distance of
+    the prediction (capped at ``track_tau_max``, m^2 at 1.8 m, scaled by size^2) annealed by
+    ``track_anneal`` to ``tau_init``, then Eq. 12. With ``track_from_structure`` each frame is
+    also fitted from step 2's own pose of it, and the fit with the smaller symmetric chamfer
+    misfit to the frame (template to data plus data to template, each distance truncated at
+    ``3 sqrt(track_tau_max)``) is kept: the prediction recovers what step 1 lost, step 2's pose
+    keeps what step 1 got right (a rigid-bone prediction drifts on smoothly bending bodies).
+    Frames without points keep the prediction.
+
+    Parameters
+    ----------
+    obs
+        ``F`` observed point clouds ``(N_t, 3)``, metres.
+    rest_points
+        ``(M, 3)`` rest points, metres.
+    structure
+        Step 2's result (labels, bone tree, joints, per-frame transforms).
+    rest_index
+        Frame whose bone transforms are the rest pose's start (``0 <= rest_index < F``).
+    config
+        Step 3's parameters (E-step, ``gamma``, ``track_*``).
+
+    Returns
+    -------
+    R, T
+        ``(F, B, 3, 3)`` and ``(F, B, 3)``: ``T_frame_rest`` of every bone per frame, metres.
+    """
+    Q = rest_points
+    F, M = len(obs), Q.shape[0]
+    parent = np.asarray(structure.bone_parent, dtype=np.int64)
+    B = len(parent)
+    root = int(np.flatnonzero(parent < 0)[0])
+    labels = np.asarray(structure.labels, dtype=np.int64)
+    idx = np.ascontiguousarray(labels[:, None])
+    w = np.ones((M, 1))
+    joints = np.asarray(structure.joints_rest, dtype=float)
+    size = float(np.linalg.norm(Q.max(0) - Q.min(0)))
+    scale2 = (size / _REFERENCE_SIZE) ** 2 if size > 0 else 1.0
+    tau0 = max(config.tau_init * scale2 if config.tau_init_relative else config.tau_init,
+               config.tau_min)
+    tau_max = max(config.track_tau_max * scale2, tau0)
+    floor = max(config.tau_min, 1e-6 * scale2)
+    R = np.array(structure.R, dtype=float)
+    T = np.array(structure.T, dtype=float)
+
+    def skin(Rb: np.ndarray, Tb: np.ndarray) -> np.ndarray:
+        Rf, Tf = _flat_rt(Rb[None], Tb[None])
+        return _core.lbs_skin(Q, idx, w, Rf, Tf, 1).reshape(M, 3)
+
+    from scipy.spatial import cKDTree
+
+    def fit_frame(v: np.ndarray, tree: Any, Rt: np.ndarray, Tt: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        Tt = _fixed_joint_translations(Rt, Tt[root], joints, parent, lambda T0: skin(Rt, T0),
+                                       None, None)
+        X = skin(Rt, Tt)
+        d2 = tree.query(X)[0] ** 2
+        tau = float(np.clip(4.0 / 3.0 * d2.mean(), tau0, tau_max))
+        anneal = config.track_anneal
+        k_coarse = (int(np.ceil(np.log(tau / tau0) / np.log(1.0 / anneal)))
+                    if tau > tau0 and 0 < anneal < 1 else 0)
+        for it in range(config.track_iterations):
+            es = e_step([v], X[None], np.array([tau]), config.omega, config.estep_neighbors,
+                        config.estep_radius_sigmas, config.estep_single)
+            a = es.P1[0] / tau
+            if config.gmm_density_normalize:
+                a = a * (M / len(v))
+            if not float(a.sum()) > 0:
+                break
+            z = np.where((a > 0)[:, None], es.PX[0] / np.maximum(es.P1[0], 1e-300)[:, None], X)
+            Rf, Tf = _flat_rt(Rt[None], Tt[None])
+            Rn, _Tn = _core.lbs_sweep_articulated(
+                Q, idx, w, Rf, Tf, np.ascontiguousarray(a[None]), np.ascontiguousarray(z),
+                Rf, parent, joints, config.gamma, 1)
+            Rt = Rn.reshape(B, 3, 3)
+            Tt = _fixed_joint_translations(Rt, Tt[root], joints, parent,
+                                           lambda T0, Rt=Rt: skin(Rt, T0), a, z)
+            X = skin(Rt, Tt)
+            # Eq. 12 form with this E-step's statistics at the new points
+            ss = float(es.sxx[0] - 2.0 * np.sum(es.PX[0] * X) + np.sum(es.P1[0][:, None] * X * X))
+            eq12 = max(ss / (3.0 * max(float(es.Np[0]), 1e-12)), floor)
+            tau = min(eq12, max(anneal * tau, tau0)) if it < k_coarse else eq12
+        return Rt, Tt, X
+
+    # symmetric chamfer, each distance truncated at 3 sqrt(tau_max): how well a pose explains
+    # the frame (template on data, and no data left without template)
+    trunc = 3.0 * float(np.sqrt(tau_max))
+
+    def misfit(X: np.ndarray, v: np.ndarray, tree: Any) -> float:
+        d_xv = np.minimum(tree.query(X)[0], trunc).mean()
+        d_vx = np.minimum(cKDTree(X).query(v)[0], trunc).mean()
+        return float(d_xv + d_vx)
+
+    order = [rest_index] + list(range(rest_index + 1, F)) + list(range(rest_index - 1, -1, -1))
+    for t in order:
+        v = obs[t]
+        s = 1 if t >= rest_index else -1
+        p1, p2 = t - s, t - 2 * s
+        starts = []
+        if t == rest_index:
+            starts.append((R[t].copy(), T[t].copy()))
+        else:
+            if (p2 - rest_index) * s >= 0:
+                starts.append(_predict_rigid(R[p1], T[p1], R[p2], T[p2], config.track_velocity))
+            else:
+                starts.append((R[p1].copy(), T[p1].copy()))
+            if config.track_from_structure:
+                # second hypothesis: step 2's own pose of this frame (the registration)
+                starts.append((np.array(structure.R[t], dtype=float),
+                               np.array(structure.T[t], dtype=float)))
+        if len(v) == 0:
+            Rt, Tt = starts[0]
+            R[t] = Rt
+            T[t] = _fixed_joint_translations(Rt, Tt[root], joints, parent,
+                                             lambda T0: skin(Rt, T0), None, None)
+            continue
+        tree = cKDTree(v)
+        best = None
+        for Rs, Ts in starts:
+            Rt, Tt, X = fit_frame(v, tree, Rs, Ts)
+            score = misfit(X, v, tree) if len(starts) > 1 else 0.0
+            if best is None or score < best[0]:
+                best = (score, Rt, Tt)
+        assert best is not None
+        R[t], T[t] = best[1], best[2]
+    return R, T
+
+
 # -------------------------------------------------------------------------- main loop
 
 
@@ -464,6 +644,7 @@ def learn_joints(
     structure: StructureLike,
     config: JointsConfig | None = None,
     progress: Callable[[int, int], None] | None = None,
+    rest_index: int | None = None,
 ) -> JointsResult:
     """Refine the skeleton's joints with the full LBS model (Algorithm 2).
 
@@ -481,6 +662,10 @@ def learn_joints(
         :class:`~pointrig.config.JointsConfig` (Table 1 defaults).
     progress
         Called as ``progress(iteration, max_iterations)`` after each iteration.
+    rest_index
+        The rest frame of step 1 (where the registered points are the rest points), from
+        which ``init="track"`` tracks outwards; ``None`` = the frame whose registered points
+        are nearest the rest points.
 
     Returns
     -------
@@ -496,6 +681,12 @@ def learn_joints(
     cfg = config or JointsConfig()
     if cfg.mode not in ("paper", "articulated"):
         raise ConfigError(f"joints.mode must be 'paper' or 'articulated', got {cfg.mode!r}")
+    if cfg.init not in ("track", "structure"):
+        raise ConfigError(f"joints.init must be 'track' or 'structure', got {cfg.init!r}")
+    if cfg.init == "track" and not (cfg.track_iterations >= 1 and 0 < cfg.track_anneal <= 1
+                                    and cfg.track_tau_max > 0 and cfg.track_velocity >= 0):
+        raise ConfigError("joints: track_iterations >= 1, 0 < track_anneal <= 1, "
+                          "track_tau_max > 0 and track_velocity >= 0 are required")
     Q = np.ascontiguousarray(rest_points, dtype=np.float64)
     Y = np.ascontiguousarray(registered, dtype=np.float64)
     frames = [np.ascontiguousarray(v, dtype=np.float64) for v in frames]
@@ -508,6 +699,16 @@ def learn_joints(
     c_tilde = np.asarray(structure.c_tilde, dtype=float)
     R = np.array(structure.R, dtype=float)
     T = np.array(structure.T, dtype=float)
+    t_track = 0.0
+    if cfg.init == "track":
+        if rest_index is None:
+            rest_index = int(np.argmin(((Y - Q[None]) ** 2).sum(axis=(1, 2))))
+        if not 0 <= rest_index < F:
+            raise InputError(f"rest_index {rest_index} outside the {F} frames")
+        t_tr = time.perf_counter()
+        R, T = track_bones(subsample_frames(frames, cfg.estep_max_points), Q, structure,
+                           int(rest_index), cfg)
+        t_track = time.perf_counter() - t_tr
     joints = np.array(structure.joints_rest, dtype=float)
     W = np.zeros((M, B))
     W[np.arange(M), np.asarray(structure.labels)] = 1.0
@@ -674,5 +875,7 @@ def learn_joints(
     out_diag: dict[str, Any] = dict(diag)
     out_diag["iterations"] = it
     out_diag["mode"] = cfg.mode
+    out_diag["init"] = cfg.init
+    out_diag["t_track"] = t_track
     out_diag["joints_step2"] = np.asarray(structure.joints_rest, dtype=float)
     return JointsResult(W, R, T, joints, tau, energy, parent.copy(), root, out_diag)
