@@ -6,6 +6,8 @@ variants are scored against the ground-truth joints with ``pointrig.evaluate``:
 
 - ``step2``      joints after the skeletal structure step only;
 - ``step3``      the full pipeline (pointrig defaults);
+- ``no_track``   the default step 3 started from step 2's bone motions (``init="structure"``)
+  instead of step 2's skeleton tracked through the raw frames;
 - ``prev``       the previous step-3 default (Eq. 22 in the loop, zeta = 1e4, weak prior);
 - ``fit_w``      the default with Eq. 22 weight updates inside the EM loop;
 - ``paper``      step 3 as Algorithm 2 with Table 1 values (no pointrig deviations);
@@ -41,11 +43,12 @@ def variants(cfg: PipelineConfig) -> dict[str, PipelineConfig]:
     paper = dataclasses.replace(j, mode="paper", gmm_density_normalize=False,
                                 weight_candidates="all", prior_from_weights=False,
                                 joint_tolerance=0.0, update_weights=True, zeta_scale=1.0,
-                                tau_init_relative=False)
+                                tau_init_relative=False, init="structure")
     prev = dataclasses.replace(j, update_weights=True, zeta_scale=1.0, joint_prior=0.01,
-                               tau_init_relative=False)
+                               tau_init_relative=False, init="structure")
     return {
         "step3": cfg,
+        "no_track": dataclasses.replace(cfg, joints=dataclasses.replace(j, init="structure")),
         "prev": dataclasses.replace(cfg, joints=prev),
         "fit_w": dataclasses.replace(cfg, joints=dataclasses.replace(j, update_weights=True)),
         "paper": dataclasses.replace(cfg, joints=paper),
