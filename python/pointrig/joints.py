@@ -377,19 +377,26 @@ def solve_joints_articulated(
 # -------------------------------------------------------------------------- tracking
 
 
-def _fixed_joint_translations(R: np.ndarray, T_root: np.ndarray, joints: np.ndarray,
-                              parent: np.ndarray, X0_of: Callable[[np.ndarray], np.ndarray],
-                              a: np.ndarray | None, z: np.ndarray | None) -> np.ndarray:
-    """Chain translations ``(B, 3)`` of one frame with the joints held: every bone meets its
-    parent at its joint, and the root translation is the weighted mean offset
-    ``sum_m a_m (z_m - x0_m) / sum_m a_m`` of the targets ``z (M, 3)`` from the points
-    ``x0 = X0_of(T)`` skinned with zero root translation (kept at ``T_root`` if no weight)."""
+def _fixed_joint_translations(
+    R: np.ndarray, T_root: np.ndarray, joints: np.ndarray, parent: np.ndarray,
+    skin_one: Callable[[np.ndarray, np.ndarray], np.ndarray],
+    a: np.ndarray | None = None, z: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """One frame's chain translations ``(B, 3)`` with the joints held, and its skinned points.
+
+    Every bone meets its parent at its joint (:func:`chain_translations`); the root
+    translation is ``T_root (3,)``, or with weights ``a (M,)`` and targets ``z (M, 3)`` the
+    weighted mean offset ``sum_m a_m (z_m - x0_m) / sum_m a_m`` of the targets from the points
+    ``x0`` skinned with zero root translation (a rigid shift of the whole chain).
+    ``skin_one(R, T)`` returns the ``(M, 3)`` skinned points of one frame.
+    """
     T0 = chain_translations(R[None], np.zeros((1, 3)), joints, parent)[0]
+    X0 = skin_one(R, T0)
     if a is None or z is None or not float(a.sum()) > 0:
-        return T0 + T_root
-    X0 = X0_of(T0)
-    shift = (a[:, None] * (z - X0)).sum(0) / float(a.sum())
-    return T0 + shift
+        shift = T_root
+    else:
+        shift = (a[:, None] * (z - X0)).sum(0) / float(a.sum())
+    return T0 + shift, X0 + shift
 
 
 def _predict_rigid(R1: np.ndarray, T1: np.ndarray, R0: np.ndarray, T0: np.ndarray,
@@ -479,9 +486,7 @@ def track_bones(
 
     def fit_frame(v: np.ndarray, tree: Any, Rt: np.ndarray, Tt: np.ndarray
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        Tt = _fixed_joint_translations(Rt, Tt[root], joints, parent, lambda T0: skin(Rt, T0),
-                                       None, None)
-        X = skin(Rt, Tt)
+        Tt, X = _fixed_joint_translations(Rt, Tt[root], joints, parent, skin)
         d2 = tree.query(X)[0] ** 2
         tau = float(np.clip(4.0 / 3.0 * d2.mean(), tau0, tau_max))
         anneal = config.track_anneal
@@ -501,9 +506,7 @@ def track_bones(
                 Q, idx, w, Rf, Tf, np.ascontiguousarray(a[None]), np.ascontiguousarray(z),
                 Rf, parent, joints, config.gamma, 1)
             Rt = Rn.reshape(B, 3, 3)
-            Tt = _fixed_joint_translations(Rt, Tt[root], joints, parent,
-                                           lambda T0, Rt=Rt: skin(Rt, T0), a, z)
-            X = skin(Rt, Tt)
+            Tt, X = _fixed_joint_translations(Rt, Tt[root], joints, parent, skin, a, z)
             # Eq. 12 form with this E-step's statistics at the new points
             ss = float(es.sxx[0] - 2.0 * np.sum(es.PX[0] * X) + np.sum(es.P1[0][:, None] * X * X))
             eq12 = max(ss / (3.0 * max(float(es.Np[0]), 1e-12)), floor)
@@ -539,8 +542,7 @@ def track_bones(
         if len(v) == 0:
             Rt, Tt = starts[0]
             R[t] = Rt
-            T[t] = _fixed_joint_translations(Rt, Tt[root], joints, parent,
-                                             lambda T0: skin(Rt, T0), None, None)
+            T[t] = _fixed_joint_translations(Rt, Tt[root], joints, parent, skin)[0]
             continue
         tree = cKDTree(v)
         best = None
@@ -700,14 +702,16 @@ def learn_joints(
     R = np.array(structure.R, dtype=float)
     T = np.array(structure.T, dtype=float)
     t_track = 0.0
+    # observed points of the E-steps (tracking and EM): subsampled per frame, once
+    obs_all = (subsample_frames(frames, cfg.estep_max_points)
+               if cfg.use_gmm or cfg.init == "track" else [])
     if cfg.init == "track":
         if rest_index is None:
             rest_index = int(np.argmin(((Y - Q[None]) ** 2).sum(axis=(1, 2))))
         if not 0 <= rest_index < F:
             raise InputError(f"rest_index {rest_index} outside the {F} frames")
         t_tr = time.perf_counter()
-        R, T = track_bones(subsample_frames(frames, cfg.estep_max_points), Q, structure,
-                           int(rest_index), cfg)
+        R, T = track_bones(obs_all, Q, structure, int(rest_index), cfg)
         t_track = time.perf_counter() - t_tr
     joints = np.array(structure.joints_rest, dtype=float)
     W = np.zeros((M, B))
@@ -749,7 +753,7 @@ def learn_joints(
     X = skin_all(W, R, T)
     # observed points used by the E-step: subsampled per frame (the statistics scale with N_t,
     # which gmm_density_normalize divides out), packed once for the Rust kernel
-    obs = subsample_frames(frames, cfg.estep_max_points) if cfg.use_gmm else []
+    obs = obs_all if cfg.use_gmm else []
     packed = pack_frames(obs) if cfg.use_gmm else None
     joints0 = joints.copy()
     prev_total = None
