@@ -12,6 +12,11 @@ the observed points ``v_i^t`` of each frame (Eq. 16):
   translations (Eqs. 23-26, Rust, parallel over frames); joint positions (Eq. 20);
   covariances ``tau^t`` (Eq. 12 form); deformed points (Eq. 13).
 
+Start (``JointsConfig.init``): ``"track"`` (default, our deviation) fits step 2's skeleton to
+the raw frames one by one, outwards from the rest frame (:func:`track_bones`), so that the EM
+does not start from step 1's slides and lost limbs; ``"structure"`` starts from step 2's bone
+motions as the paper does.
+
 Two variants (``JointsConfig.mode``):
 
 ``"paper"``
