@@ -5,12 +5,14 @@ demo's ground truth."""
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
 
 from pointrig.cli import main
 from pointrig.data import demo_path
+from pointrig.errors import ConfigError
 from pointrig.evaluate import evaluate_files
 from pointrig.skeleton import SKELETON_FORMAT, load_skeleton_json
 
@@ -69,3 +71,23 @@ def test_bad_input_leaves_no_output(tmp_path, capsys):
     assert main(["extract", str(src), "-o", str(out)]) == 1
     assert "at least 2" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_config_file_errors_name_the_parameter(tmp_path):
+    from pointrig.config import load_config
+
+    cases = {
+        "[joints]\ninit = 3\n": "init must be a string",
+        "[joints]\ntrack_from_structure = 1\n": "must be true or false",
+        "[joints]\nno_such = 1\n": "unknown parameter 'no_such'",
+        "[nowhere]\nx = 1\n": "unknown section [nowhere]",
+    }
+    for i, (text, message) in enumerate(cases.items()):
+        p = tmp_path / f"c{i}.toml"
+        p.write_text(text)
+        with pytest.raises(ConfigError, match=re.escape(message)):
+            load_config(p)
+    p = tmp_path / "ok.toml"
+    p.write_text('[joints]\ninit = "structure"\ntrack_iterations = 5\n')
+    cfg = load_config(p)
+    assert cfg.joints.init == "structure" and cfg.joints.track_iterations == 5

@@ -341,6 +341,8 @@ def _coerce(cls: type, stage: str, values: dict[str, Any]) -> Any:
         default = getattr(cls(), key)
         if isinstance(default, bool) and not isinstance(val, bool):
             raise ConfigError(f"[{stage}] {key} must be true or false, got {val!r}")
+        if known[key].type in ("str", str) and not isinstance(val, str):
+            raise ConfigError(f"[{stage}] {key} must be a string, got {val!r}")
         if isinstance(default, float) and isinstance(val, int) and not isinstance(val, bool):
             val = float(val)
         if isinstance(val, list):
