@@ -379,6 +379,19 @@ def solve_joints_articulated(
     return joints, T
 
 
+def _size_scale2(Q: np.ndarray) -> float:
+    """``(size / 1.8 m)^2`` with ``size`` the bounding-box diagonal of ``Q (M, 3)`` (1 if 0)."""
+    size = float(np.linalg.norm(Q.max(0) - Q.min(0)))
+    return (size / _REFERENCE_SIZE) ** 2 if size > 0 else 1.0
+
+
+def _tau_start(Q: np.ndarray, cfg: JointsConfig) -> float:
+    """The starting ``tau`` (m^2): ``tau_init``, scaled by :func:`_size_scale2` when
+    ``tau_init_relative``, at least ``tau_min``."""
+    scale = _size_scale2(Q) if cfg.tau_init_relative else 1.0
+    return max(cfg.tau_init * scale, cfg.tau_min)
+
+
 # -------------------------------------------------------------------------- tracking
 
 
@@ -474,10 +487,8 @@ def track_bones(
     idx = np.ascontiguousarray(labels[:, None])
     w = np.ones((M, 1))
     joints = np.asarray(structure.joints_rest, dtype=float)
-    size = float(np.linalg.norm(Q.max(0) - Q.min(0)))
-    scale2 = (size / _REFERENCE_SIZE) ** 2 if size > 0 else 1.0
-    tau0 = max(config.tau_init * scale2 if config.tau_init_relative else config.tau_init,
-               config.tau_min)
+    scale2 = _size_scale2(Q)
+    tau0 = _tau_start(Q, config)
     tau_max = max(config.track_tau_max * scale2, tau0)
     floor = max(config.tau_min, 1e-6 * scale2)
     R = np.array(structure.R, dtype=float)
@@ -489,8 +500,8 @@ def track_bones(
 
     from scipy.spatial import cKDTree
 
-    def fit_frame(v: np.ndarray, tree: Any, Rt: np.ndarray, Tt: np.ndarray
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def fit_frame(v: np.ndarray, packed: tuple[np.ndarray, np.ndarray], tree: Any,
+                  Rt: np.ndarray, Tt: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         Tt, X = _fixed_joint_translations(Rt, Tt[root], joints, parent, skin)
         d2 = tree.query(X)[0] ** 2
         tau = float(np.clip(4.0 / 3.0 * d2.mean(), tau0, tau_max))
@@ -499,7 +510,7 @@ def track_bones(
                     if tau > tau0 and 0 < anneal < 1 else 0)
         for it in range(config.track_iterations):
             es = e_step([v], X[None], np.array([tau]), config.omega, config.estep_neighbors,
-                        config.estep_radius_sigmas, config.estep_single)
+                        config.estep_radius_sigmas, config.estep_single, packed=packed)
             a = es.P1[0] / tau
             if config.gmm_density_normalize:
                 a = a * (M / len(v))
@@ -550,9 +561,10 @@ def track_bones(
             T[t] = _fixed_joint_translations(Rt, Tt[root], joints, parent, skin)[0]
             continue
         tree = cKDTree(v)
+        packed = pack_frames([v])
         best = None
         for Rs, Ts in starts:
-            Rt, Tt, X = fit_frame(v, tree, Rs, Ts)
+            Rt, Tt, X = fit_frame(v, packed, tree, Rs, Ts)
             score = misfit(X, v, tree) if len(starts) > 1 else 0.0
             if best is None or score < best[0]:
                 best = (score, Rt, Tt)
@@ -721,11 +733,7 @@ def learn_joints(
     joints = np.array(structure.joints_rest, dtype=float)
     W = np.zeros((M, B))
     W[np.arange(M), np.asarray(structure.labels)] = 1.0
-    tau0 = cfg.tau_init
-    if cfg.tau_init_relative:
-        size = float(np.linalg.norm(Q.max(0) - Q.min(0)))
-        tau0 = cfg.tau_init * (size / _REFERENCE_SIZE) ** 2 if size > 0 else cfg.tau_init
-    tau = np.full(F, max(tau0, cfg.tau_min))
+    tau = np.full(F, _tau_start(Q, cfg))
     zeta = cfg.zeta * cfg.zeta_scale
     alpha = cfg.alpha_init if cfg.alpha_init is not None else cfg.zeta * M
     articulated = cfg.mode == "articulated"
