@@ -42,3 +42,17 @@ def test_help_and_info_do_not_import_open3d(tmp_path, rng):
     res = subprocess.run([sys.executable, "-m", "pointrig", "--help"], capture_output=True,
                          text=True)
     assert res.returncode == 0 and "info" in res.stdout
+
+
+def test_bad_config_choice_fails_before_step_1(tmp_path, rng, capsys):
+    """A mistyped choice in --config is reported at once (exit 1, one line naming the stage
+    and field), before any step runs, and nothing is written."""
+    src = tmp_path / "seq"
+    write_sequence(src, [rng.normal(size=(300, 3)) for _ in range(3)])
+    cfg = tmp_path / "bad.toml"
+    cfg.write_text('[joints]\ninit = "xyz"\n')
+    out = tmp_path / "out"
+    assert main(["extract", str(src), "-o", str(out), "--config", str(cfg)]) == 1
+    err = capsys.readouterr().err
+    assert "[joints] init must be one of" in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()

@@ -81,6 +81,11 @@ def test_config_file_errors_name_the_parameter(tmp_path):
         "[joints]\ntrack_from_structure = 1\n": "must be true or false",
         "[joints]\nno_such = 1\n": "unknown parameter 'no_such'",
         "[nowhere]\nx = 1\n": "unknown section [nowhere]",
+        # a mistyped choice fails when the file is read, before step 1 runs
+        '[joints]\ninit = "xyz"\n': "[joints] init must be one of 'track', 'structure'",
+        '[structure]\nroot_choice = "center"\n': "[structure] root_choice must be one of",
+        '[registration]\nrest_frame = "first"\n': "[registration] rest_frame must be",
+        '[preprocess]\nbackground = "remove"\n': "[preprocess] background must be one of",
     }
     for i, (text, message) in enumerate(cases.items()):
         p = tmp_path / f"c{i}.toml"
@@ -91,3 +96,33 @@ def test_config_file_errors_name_the_parameter(tmp_path):
     p.write_text('[joints]\ninit = "structure"\ntrack_iterations = 5\n')
     cfg = load_config(p)
     assert cfg.joints.init == "structure" and cfg.joints.track_iterations == 5
+
+
+def test_every_choice_parameter_is_checked_when_the_config_is_made():
+    """Each string parameter with a fixed set of values rejects anything else at construction
+    (a ConfigError naming the stage and field); every listed value is accepted."""
+    from pointrig.config import (JointsConfig, PreprocessConfig, RegistrationConfig,
+                                 StructureConfig)
+
+    choices = {
+        PreprocessConfig: {"background": ("auto", "keep")},
+        RegistrationConfig: {"solver": ("gauss_newton", "sweeps"),
+                             "beta_smooth_mode": ("relative", "fixed"),
+                             "sigma2_start": ("data", "residual", "fixed"),
+                             "rest_frame": ("middle", 0, 7)},
+        StructureConfig: {"merge_rule": ("angle", "both"), "merge_reference": ("range", "rest"),
+                          "root_choice": ("largest", "centroid"),
+                          "view_depth_method": ("width", "quantile"),
+                          "single_view": ("yes", "no", "auto")},
+        JointsConfig: {"mode": ("articulated", "paper"), "init": ("track", "structure"),
+                       "weight_candidates": ("tree", "all")},
+    }
+    for cls, fields_ in choices.items():
+        for name, good in fields_.items():
+            for val in good:
+                assert getattr(cls(**{name: val}), name) == val
+            for bad in ("no-such-value", "", 3.5, None, True):
+                if name == "rest_frame" and isinstance(bad, int) and not isinstance(bad, bool):
+                    continue
+                with pytest.raises(ConfigError, match=rf"{name} must be"):
+                    cls(**{name: bad})

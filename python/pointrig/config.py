@@ -16,6 +16,7 @@ A TOML file overrides any field, one table per stage::
 from __future__ import annotations
 
 import dataclasses
+import numbers
 import tomllib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -31,6 +32,17 @@ __all__ = [
     "PipelineConfig",
     "load_config",
 ]
+
+
+def _check_choices(obj: Any, stage: str, choices: dict[str, tuple[str, ...]]) -> None:
+    """Raise :class:`ConfigError` naming the stage and field if a string parameter of ``obj``
+    is not one of its allowed values (checked when the config is made, so a typo in a config
+    file or a keyword fails before any step runs, not after minutes of registration)."""
+    for name, allowed in choices.items():
+        val = getattr(obj, name)
+        if not isinstance(val, str) or val not in allowed:
+            opts = ", ".join(repr(a) for a in allowed)
+            raise ConfigError(f"[{stage}] {name} must be one of {opts}, got {val!r}")
 
 
 @dataclass(frozen=True)
@@ -51,6 +63,9 @@ class PreprocessConfig:
     # by hand: crop_min / crop_max)
     background: str = "auto"
     background_threshold: float = 0.03  # RANSAC inlier distance of the plane search, metres
+
+    def __post_init__(self) -> None:
+        _check_choices(self, "preprocess", {"background": ("auto", "keep")})
 
 
 @dataclass(frozen=True)
@@ -112,6 +127,15 @@ class RegistrationConfig:
     sor_neighbors: int = 20  # rest surface: statistical outlier removal, k
     sor_std_ratio: float = 2.0  # rest surface: keep mean k-NN distance < mean + ratio * std
     mls_neighbors: int = 16  # rest surface: MLS (local plane) projection neighbours (0 = off)
+
+    def __post_init__(self) -> None:
+        _check_choices(self, "registration", {
+            "solver": ("gauss_newton", "sweeps"), "beta_smooth_mode": ("relative", "fixed"),
+            "sigma2_start": ("data", "residual", "fixed")})
+        rf = self.rest_frame
+        if isinstance(rf, bool) or not (isinstance(rf, numbers.Integral) or rf == "middle"):
+            raise ConfigError(
+                f"[registration] rest_frame must be a frame index or 'middle', got {rf!r}")
 
     @classmethod
     def paper(cls, **overrides: Any) -> "RegistrationConfig":
@@ -244,6 +268,12 @@ class StructureConfig:
     # the camera's rays, pointrig.view.is_single_view; fragile on side views, docs/structure.md)
     single_view: str = "yes"
 
+    def __post_init__(self) -> None:
+        _check_choices(self, "structure", {
+            "merge_rule": ("angle", "both"), "merge_reference": ("range", "rest"),
+            "root_choice": ("largest", "centroid"), "view_depth_method": ("width", "quantile"),
+            "single_view": ("yes", "no", "auto")})
+
 
 @dataclass(frozen=True)
 class JointsConfig:
@@ -314,6 +344,11 @@ class JointsConfig:
     estep_single: bool = True  # float32 distances/exponentials, float64 sums (~1e-6 relative)
     estep_max_points: int = 4000  # subsample each frame to at most this many observed points for
     #   the E-step (evenly along the sensor order); 0 = all points
+
+    def __post_init__(self) -> None:
+        _check_choices(self, "joints", {
+            "mode": ("articulated", "paper"), "init": ("track", "structure"),
+            "weight_candidates": ("tree", "all")})
 
 
 @dataclass(frozen=True)
