@@ -334,3 +334,22 @@ def test_tracking_config_errors():
             learn_joints(fig.frames, fig.rest_points, fig.registered, st, JointsConfig(**bad))
     with pytest.raises(InputError):
         learn_joints(fig.frames, fig.rest_points, fig.registered, st, rest_index=3)
+
+
+def test_tracking_reports_progress_per_frame():
+    """The tracking pass reports every frame once, in order, ending at (F, F); learn_joints
+    passes its own callback on, and the result does not depend on whether one is given."""
+    fig = make_figure("arm", n_frames=6, n_points=200, n_obs=300)
+    st = step2_standin(fig)
+    calls: list[tuple[int, int]] = []
+    R, T = track_bones(subsample_frames(fig.frames, 4000), fig.rest_points, st, 2,
+                       JointsConfig(), progress=lambda d, n: calls.append((d, n)))
+    assert calls == [(k, 6) for k in range(1, 7)]
+    R0, T0 = track_bones(subsample_frames(fig.frames, 4000), fig.rest_points, st, 2,
+                         JointsConfig())
+    np.testing.assert_array_equal(R, R0)
+    np.testing.assert_array_equal(T, T0)
+    seen: list[tuple[int, int]] = []
+    learn_joints(fig.frames, fig.rest_points, fig.registered, st,
+                 JointsConfig(max_iterations=1), track_progress=lambda d, n: seen.append((d, n)))
+    assert seen[-1] == (6, 6) and len(seen) == 6

@@ -441,6 +441,7 @@ def track_bones(
     structure: StructureLike,
     rest_index: int,
     config: JointsConfig,
+    progress: Callable[[int, int], None] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Track step 2's skeleton through the observed frames (the ``init="track"`` start of
     step 3).
@@ -472,6 +473,8 @@ def track_bones(
         Frame whose bone transforms are the rest pose's start (``0 <= rest_index < F``).
     config
         Step 3's parameters (E-step, ``gamma``, ``track_*``).
+    progress
+        Called as ``progress(frames_done, F)`` after each frame.
 
     Returns
     -------
@@ -539,7 +542,9 @@ def track_bones(
         return float(d_xv + d_vx)
 
     order = [rest_index] + list(range(rest_index + 1, F)) + list(range(rest_index - 1, -1, -1))
-    for t in order:
+    for done, t in enumerate(order, start=1):
+        if progress is not None and done > 1:
+            progress(done - 1, F)
         v = obs[t]
         s = 1 if t >= rest_index else -1
         p1, p2 = t - s, t - 2 * s
@@ -570,6 +575,8 @@ def track_bones(
                 best = (score, Rt, Tt)
         assert best is not None
         R[t], T[t] = best[1], best[2]
+    if progress is not None:
+        progress(F, F)
     return R, T
 
 
@@ -664,6 +671,7 @@ def learn_joints(
     config: JointsConfig | None = None,
     progress: Callable[[int, int], None] | None = None,
     rest_index: int | None = None,
+    track_progress: Callable[[int, int], None] | None = None,
 ) -> JointsResult:
     """Refine the skeleton's joints with the full LBS model (Algorithm 2).
 
@@ -685,6 +693,8 @@ def learn_joints(
         The rest frame of step 1 (where the registered points are the rest points), from
         which ``init="track"`` tracks outwards; ``None`` = the frame whose registered points
         are nearest the rest points.
+    track_progress
+        Called as ``progress(frames_done, F)`` after each frame of the ``init="track"`` pass.
 
     Returns
     -------
@@ -728,7 +738,7 @@ def learn_joints(
         if not 0 <= rest_index < F:
             raise InputError(f"rest_index {rest_index} outside the {F} frames")
         t_tr = time.perf_counter()
-        R, T = track_bones(obs_all, Q, structure, int(rest_index), cfg)
+        R, T = track_bones(obs_all, Q, structure, int(rest_index), cfg, track_progress)
         t_track = time.perf_counter() - t_tr
     joints = np.array(structure.joints_rest, dtype=float)
     W = np.zeros((M, B))

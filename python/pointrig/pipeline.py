@@ -179,7 +179,8 @@ def extract(
         rest_index = reg.params.get("rest_frame_index") if reg.params else None
         jr = joints_mod.learn_joints(seq.frames, reg.rest_points, reg.points, st,
                                      config.joints, progress=report("joints"),
-                                     rest_index=None if rest_index is None else int(rest_index))
+                                     rest_index=None if rest_index is None else int(rest_index),
+                                     track_progress=report("tracking"))
         timings["joints"] = time.perf_counter() - t0
         result.joints = jr
         labels = np.argmax(jr.weights, axis=1)
