@@ -114,10 +114,7 @@ def _read_configured(args: argparse.Namespace, cfg):
     from .io import read_sequence
     from .preprocess import remove_background
 
-    pre = cfg.preprocess
-    if pre.background not in ("auto", "keep"):
-        raise ConfigError(
-            f"[preprocess] background must be 'auto' or 'keep', got {pre.background!r}")
+    pre = cfg.preprocess  # its choices were checked when the config was made
     seq = read_sequence(
         args.input, start=pre.frame_start, stop=pre.frame_stop, stride=pre.frame_stride,
         crop_min=pre.crop_min, crop_max=pre.crop_max, voxel_size=pre.voxel_size,

@@ -705,13 +705,9 @@ def learn_joints(
     InputError
         On inconsistent shapes or non-finite input.
     ConfigError
-        On an unknown ``mode``.
+        On invalid ``track_*`` parameters (the choices are checked by JointsConfig).
     """
-    cfg = config or JointsConfig()
-    if cfg.mode not in ("paper", "articulated"):
-        raise ConfigError(f"joints.mode must be 'paper' or 'articulated', got {cfg.mode!r}")
-    if cfg.init not in ("track", "structure"):
-        raise ConfigError(f"joints.init must be 'track' or 'structure', got {cfg.init!r}")
+    cfg = config or JointsConfig()  # its choices (mode, init, ...) were checked when made
     if cfg.init == "track" and not (cfg.track_iterations >= 1 and 0 < cfg.track_anneal <= 1
                                     and cfg.track_tau_max > 0 and cfg.track_velocity >= 0):
         raise ConfigError("joints: track_iterations >= 1, 0 < track_anneal <= 1, "
@@ -771,8 +767,6 @@ def learn_joints(
             if p_ >= 0:
                 adj[k_, p_] = adj[p_, k_] = True
         allowed = np.ascontiguousarray(adj[np.asarray(structure.labels)])
-    elif cfg.weight_candidates != "all":
-        raise ConfigError(f"joints.weight_candidates must be 'all' or 'tree', got {cfg.weight_candidates!r}")
     X = skin_all(W, R, T)
     # observed points used by the E-step: subsampled per frame (the statistics scale with N_t,
     # which gmm_density_normalize divides out), packed once for the Rust kernel

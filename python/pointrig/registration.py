@@ -243,15 +243,8 @@ def resolve_rest_frame(config: RegistrationConfig, n_frames: int) -> int:
 
 
 def _validate(config: RegistrationConfig, n_frames: int) -> None:
-    if config.solver not in ("gauss_newton", "sweeps"):
-        raise ConfigError(f"[registration] solver must be 'gauss_newton' or 'sweeps', got {config.solver!r}")
-    if config.beta_smooth_mode not in ("relative", "fixed"):
-        raise ConfigError(f"[registration] beta_smooth_mode must be 'relative' or 'fixed'")
-    if config.sigma2_start not in ("data", "residual", "fixed"):
-        raise ConfigError(
-            f"[registration] sigma2_start must be 'data', 'residual' or 'fixed', "
-            f"got {config.sigma2_start!r}"
-        )
+    # the choice parameters (solver, beta_smooth_mode, sigma2_start) are checked when the
+    # config is made (pointrig.config); here the numeric ranges
     if not (0.0 <= config.omega < 1.0):
         raise ConfigError("[registration] omega must be in [0, 1)")
     if config.sigma2_init <= 0 or config.sigma2_min <= 0 or config.sigma2_start_max <= 0:

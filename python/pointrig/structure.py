@@ -813,28 +813,16 @@ def _check_inputs(rest_points: np.ndarray, points: np.ndarray, cfg: StructureCon
                           "cluster_rounds >= 0")
     if not 0 <= cfg.merge_percentile <= 100:
         raise ConfigError("structure: merge_percentile must be in [0, 100]")
-    if cfg.merge_reference not in ("range", "rest"):
-        raise ConfigError(f"structure: merge_reference must be 'range' or 'rest', "
-                          f"got {cfg.merge_reference!r}")
-    if cfg.merge_rule not in ("angle", "both"):
-        raise ConfigError(f"structure: merge_rule must be 'angle' or 'both', "
-                          f"got {cfg.merge_rule!r}")
     if cfg.merge_rule == "both" and not cfg.merge_displacement > 0:
         raise ConfigError("structure: merge_displacement must be > 0 (fraction of the size)")
     if not 0 <= cfg.view_depth_quantile <= 1:
         raise ConfigError("structure: view_depth_quantile must be in [0, 1]")
-    if cfg.view_depth_method not in ("width", "quantile"):
-        raise ConfigError(f"structure: view_depth_method must be 'width' or 'quantile', "
-                          f"got {cfg.view_depth_method!r}")
     if cfg.view_depth_method == "width" and 0 < cfg.view_depth_quantile <= 0.5:
         raise ConfigError("structure: view_depth_method 'width' needs view_depth_quantile "
                           "above 1/2 (or 0 = off)")
     if not (cfg.neighbor_stretch == 0 or cfg.neighbor_stretch >= 1):
         raise ConfigError("structure: neighbor_stretch must be 0 (off) or >= 1 "
                           f"(a factor on the ball radius), got {cfg.neighbor_stretch!r}")
-    if cfg.single_view not in ("auto", "yes", "no"):
-        raise ConfigError(f"structure: single_view must be 'auto', 'yes' or 'no', "
-                          f"got {cfg.single_view!r}")
     if len(cfg.camera_position) != 3 or not np.all(np.isfinite(cfg.camera_position)):
         raise ConfigError("structure: camera_position must be 3 finite numbers (metres)")
     return Q, Y
