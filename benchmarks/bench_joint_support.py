@@ -36,20 +36,18 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_registration_downstream import FIGURES, score_joints  # noqa: E402
-from bench_structure_real import WIDE, _load  # noqa: E402
+from bench_structure_real import _load  # noqa: E402
 
-from pointrig import _core  # noqa: E402
 from pointrig.config import PipelineConfig  # noqa: E402
 from pointrig.joints import learn_joints, subsample_frames  # noqa: E402
 from pointrig.pipeline import _tree_order, build_skeleton  # noqa: E402
 from pointrig.structure import extract_structure, fit_bones  # noqa: E402
 
 
-def _rigid(q: np.ndarray, y: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Weighted Kabsch (Eq. 14, Rust) of one frame, ``q (n, 3)`` -> ``y (n, 3)`` with weights
-    ``w (n,)``: ``R (3, 3)``, ``T (3,)`` (metres)."""
-    R, T, _ = _core.cluster_fit(np.ascontiguousarray(q), np.ascontiguousarray(y[None]),
-                                np.zeros(len(q), np.int64), 1, np.ascontiguousarray(w))
+def _rigid(q: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Kabsch (Eq. 14) of one frame, ``q (n, 3)`` -> ``y (n, 3)``: ``R (3, 3)``, ``T (3,)``."""
+    R, T, _ = fit_bones(np.ascontiguousarray(q), np.ascontiguousarray(y[None]),
+                        np.zeros(len(q), np.int64), 1)
     return R[0, 0], T[0, 0]
 
 
@@ -88,10 +86,10 @@ def data_support(obs: list[np.ndarray], Q: np.ndarray, labels: np.ndarray, paren
                 Rm, Tm = R[t, s], T[t, s]
                 for _ in range(icp_iterations):
                     dd, j = cKDTree(q_pc @ Rm.T + Tm).query(v_pc)
-                    w = (dd < trunc).astype(float)
-                    if w.sum() < 3:
+                    inl = dd < trunc
+                    if inl.sum() < 3:
                         break
-                    Rm, Tm = _rigid(q_pc[j], v_pc, w)
+                    Rm, Tm = _rigid(q_pc[j[inl]], v_pc[inl])
                 tree = cKDTree(q_pc @ Rm.T + Tm)
                 total = np.mean(np.minimum(tree.query(v_pc)[0], trunc) ** 2)
                 if best is None or total < best[0]:

@@ -230,14 +230,13 @@ def resolve_rest_frame(config: RegistrationConfig, n_frames: int) -> int:
     Raises
     ------
     ConfigError
-        If it is neither a frame index in ``[0, n_frames)`` nor "middle".
+        If the index is outside ``[0, n_frames)`` (its type, an index or "middle", is checked
+        when the config is made).
     """
     rf = config.rest_frame
-    if isinstance(rf, str):
-        if rf != "middle":
-            raise ConfigError(f"[registration] rest_frame must be a frame index or 'middle', got {rf!r}")
+    if rf == "middle":
         return n_frames // 2
-    if isinstance(rf, bool) or not isinstance(rf, (int, np.integer)) or not 0 <= rf < n_frames:
+    if not 0 <= rf < n_frames:
         raise ConfigError(f"[registration] rest_frame {rf!r} outside 0..{n_frames - 1}")
     return int(rf)
 
