@@ -17,6 +17,7 @@ from pointrig.structure import (
     extract_structure,
     fit_bones,
     relative_rotation_angles,
+    removal_cost,
     to_skeleton,
     write_structure_outputs,
 )
@@ -354,3 +355,29 @@ def test_parts_touching_only_in_the_rest_pose_are_not_neighbours():
     assert (0, 1) in strict and (0, 2) not in strict
     with pytest.raises(ConfigError, match="neighbor_stretch"):
         extract_structure(Q, Y, StructureConfig(neighbor_stretch=0.5))
+
+
+def test_removal_cost_matches_a_numpy_oracle():
+    rng = np.random.default_rng(4)
+    M, F, B = 60, 7, 4
+    Q = rng.normal(size=(M, 3))
+    Y = rng.normal(size=(F, M, 3))
+    labels = rng.integers(0, B, M)
+    R = Rotation.random(F * B, random_state=5).as_matrix().reshape(F, B, 3, 3)
+    T = rng.normal(size=(F, B, 3))
+    for b, others in ((1, [0]), (2, [0, 3]), (3, [2, 1, 0])):
+        cost, to = removal_cost(Q, Y, R, T, labels, b, others)
+        sel = np.flatnonzero(labels == b)
+        # residual summed over frames of point m under bone k, by explicit loops
+        r = np.array([[sum(float(np.sum((R[t, k] @ Q[m] + T[t, k] - Y[t, m]) ** 2))
+                           for t in range(F)) for k in [b] + others] for m in sel])
+        want = np.sqrt(max(r[:, 1:].min(1).mean() - r[:, 0].mean(), 0.0) / F)
+        assert cost == pytest.approx(want, rel=1e-9)
+        np.testing.assert_array_equal(to, np.array(others)[r[:, 1:].argmin(1)])
+    # a bone that moves exactly like its neighbour costs nothing to remove
+    R2, T2 = R.copy(), T.copy()
+    R2[:, 1], T2[:, 1] = R[:, 0], T[:, 0]
+    Y2 = np.einsum("fij,mj->fmi", R2[:, 1], Q) + T2[:, None, 1]
+    assert removal_cost(Q, Y2, R2, T2, labels, 1, [0])[0] == pytest.approx(0.0, abs=1e-9)
+    with pytest.raises(ConfigError, match="invisible_bone_fraction"):
+        extract_structure(Q, Y, StructureConfig(invisible_bone_fraction=-0.1))

@@ -111,3 +111,52 @@ def test_on_pointrig_synth_surfaces():
         got = {frozenset((int(part[k]), int(part[p]))) for k, p in enumerate(r.bone_parent)
                if p >= 0}
         assert r.n_bones == len(par) and got == gt, name
+
+
+def _moving_parts(s) -> np.ndarray:
+    """Ground-truth part of each joint after contracting the parts that do not visibly
+    articulate (the evaluation's 1.5 % swing rule, an independent oracle) into their parents."""
+    from pointrig.evaluate import scorable_joints
+
+    _mask, reasons, _sw = scorable_joints(s.gt_joints, s.joint_parents, surface=s.surface,
+                                          surface_labels=s.surface_labels, skinned=s.skinned)
+    part = np.arange(len(s.joint_parents))
+    for j in range(len(part)):
+        k = j
+        while s.joint_parents[k] >= 0 and reasons[k].startswith("static"):
+            k = int(s.joint_parents[k])
+        part[j] = k
+    return part
+
+
+def test_invisible_blend_pieces_are_removed_on_the_synth_quadruped():
+    """pointrig.synth quadruped on exact surfaces: a small piece of a thigh or the tail that
+    turns 15-30 deg against its neighbours but moves them by < 0.5 % of the size is not a
+    bone; with the pieces gone, the tree equals the ground truth with its static parts
+    contracted (#5's quadruped topology). Seeds 0, 2, 5 and 8 of 0-9 pass this (3 of them
+    without the test); the others keep the bone of a paw that swings just under the 1.5 %
+    or lose one just over it (docs/structure.md, session 17)."""
+    from pointrig.synth import synthesize
+
+    s = synthesize("quadruped", n_frames=30, seed=0, amplitude=1.6)
+    Y, par = s.surface, s.joint_parents
+    part_of = _moving_parts(s)
+    lab = part_of[s.surface_labels]
+    gt = {frozenset((int(part_of[k]), int(part_of[p]))) for k, p in enumerate(par)
+          if p >= 0 and part_of[k] != part_of[p]}
+
+    def run(cfg):
+        r = extract_structure(Y[0], Y, cfg)
+        part = bone_to_part(r.labels, lab, r.n_bones)
+        got = {frozenset((int(part[k]), int(part[p]))) for k, p in enumerate(r.bone_parent)
+               if p >= 0}
+        return r, part, got
+
+    r, part, got = run(StructureConfig())
+    assert purity(r.labels, lab) >= 0.9
+    assert len(set(part.tolist())) == r.n_bones == len(set(part_of.tolist()))
+    assert got == gt
+    assert r.diagnostics["invisible_bones_removed"]
+    # without the test a ground-truth part keeps two bones (the test can fail)
+    r0, part0, _got0 = run(StructureConfig(invisible_bone_fraction=0.0))
+    assert len(set(part0.tolist())) < r0.n_bones

@@ -240,6 +240,14 @@ class StructureConfig:
     # points from their centroid) spans no length: a ring around one joint -> joints merged,
     # bone removed (real bones measured >= 1.3, joint rings <= 0.55)
     short_bone_ratio: float = 0.75
+    # invisible bone (our deviation, docs/structure.md "Session 17"): a non-root bone whose points
+    # the motions of its tree neighbours (parent, children; each point the better one) explain
+    # to within invisible_bone_fraction * size RMS beyond its own rigid fit (size = rest-pose
+    # bounding-box diagonal) moves no more visibly than that against them -> its points go to
+    # them. A third of the evaluation's 1.5 % 'visibly articulates' swing; removes the small
+    # blend pieces at joints that the angle test keeps apart (10-30 deg on 1-2 % of the
+    # points). 0 = off
+    invisible_bone_fraction: float = 0.005
     refine_passes: int = 25  # maximum rounds of merge / prune / rebuild (one pruning each)
 
     # --- initial joints (Eq. 20) ---

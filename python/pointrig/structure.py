@@ -54,6 +54,7 @@ __all__ = [
     "eq15_weights",
     "relative_rotation_angles",
     "relative_rotation_range",
+    "removal_cost",
     "write_structure_outputs",
 ]
 
@@ -717,6 +718,38 @@ def _blend_all_pairs(q: np.ndarray, y: np.ndarray, R: np.ndarray, T: np.ndarray,
     return out
 
 
+def removal_cost(Q: np.ndarray, Y: np.ndarray, R: np.ndarray, T: np.ndarray,
+                 labels: np.ndarray, b: int, others: list[int]) -> tuple[float, np.ndarray]:
+    """How visibly bone ``b`` moves against the bones ``others``, metres.
+
+    Each point of ``b`` is given to whichever of ``others`` fits it best (Eq. 14 residual
+    summed over frames, their transforms held fixed). Returns the RMS over those points and
+    the frames of the extra misfit against ``b``'s own fit,
+    ``sqrt(max(mean_m min_k r_mk - mean_m r_mb, 0) / F)``, and the chosen bone per point
+    ``(n_b,)``.
+
+    Parameters
+    ----------
+    Q, Y
+        ``(M, 3)`` rest points and ``(F, M, 3)`` registered points, metres.
+    R, T
+        ``(F, B, 3, 3)`` and ``(F, B, 3)`` per-bone transforms (``T_frame_rest``).
+    labels
+        ``(M,)`` bone per point.
+    b, others
+        The bone and its candidate replacements (non-empty).
+    """
+    sel = np.flatnonzero(labels == b)
+    cand = np.empty((len(sel), len(others) + 1), np.int64)
+    cand[:, 0] = b
+    cand[:, 1:] = others
+    res = _core.cluster_residuals(Q[sel], np.ascontiguousarray(Y[:, sel]), R, T, cand)
+    own = float(res[:, 0].mean()) if len(sel) else 0.0
+    best = float(res[:, 1:].min(1).mean()) if len(sel) else 0.0
+    cost = float(np.sqrt(max(best - own, 0.0) / max(Y.shape[0], 1)))
+    return cost, np.asarray(others, np.int64)[res[:, 1:].argmin(1)]
+
+
 def _prune(ctx: _Ctx, labels: np.ndarray, parent: np.ndarray, joints: np.ndarray,
            counts: np.ndarray, diag: dict[str, Any]) -> np.ndarray | None:
     """One pruning step of §5.4 on the tree; returns new labels or ``None`` if nothing to do.
@@ -728,7 +761,10 @@ def _prune(ctx: _Ctx, labels: np.ndarray, parent: np.ndarray, joints: np.ndarray
     * close joints: a non-root bone with children whose head joint and every child joint lie
       within ``short_bone_ratio`` times the bone's own extent (95th percentile distance of its
       points from their centroid) -> its joints are merged: the bone is removed and
-      each of its points goes to the parent or a child, whichever fits best (Eq. 14 residual).
+      each of its points goes to the parent or a child, whichever fits best (Eq. 14 residual);
+    * invisible bone: a non-root bone whose :func:`removal_cost` against its tree neighbours
+      is below ``invisible_bone_fraction`` times the size -> each point goes to the better
+      neighbour (smallest cost first).
     """
     cfg = ctx.cfg
     B = len(parent)
@@ -791,6 +827,24 @@ def _prune(ctx: _Ctx, labels: np.ndarray, parent: np.ndarray, joints: np.ndarray
         new[sel] = np.array(cand_bones)[res.argmin(1)]
         diag.setdefault("short_bones_removed", []).append(round(span, 4))
         return new
+    if cfg.invisible_bone_fraction > 0:
+        R, T, _c = ctx.fit(labels, B)
+        best: tuple[float, int, np.ndarray] | None = None
+        for b in range(B):
+            if parent[b] < 0:
+                continue
+            cost, to = removal_cost(ctx.Q, ctx.Y, R, T, labels, b,
+                                    [int(parent[b])] + [int(c) for c in children[b]])
+            if cost < cfg.invisible_bone_fraction * ctx.size and (best is None or
+                                                                   cost < best[0]):
+                best = (cost, b, to)
+        if best is not None:
+            cost, b, to = best
+            new = labels.copy()
+            new[labels == b] = to
+            diag.setdefault("invisible_bones_removed", []).append(
+                round(cost / ctx.size, 5))
+            return new
     return None
 
 
@@ -823,6 +877,9 @@ def _check_inputs(rest_points: np.ndarray, points: np.ndarray, cfg: StructureCon
     if not (cfg.neighbor_stretch == 0 or cfg.neighbor_stretch >= 1):
         raise ConfigError("structure: neighbor_stretch must be 0 (off) or >= 1 "
                           f"(a factor on the ball radius), got {cfg.neighbor_stretch!r}")
+    if not (np.isfinite(cfg.invisible_bone_fraction) and cfg.invisible_bone_fraction >= 0):
+        raise ConfigError("structure: invisible_bone_fraction must be >= 0 (fraction of the "
+                          f"size; 0 = off), got {cfg.invisible_bone_fraction!r}")
     if len(cfg.camera_position) != 3 or not np.all(np.isfinite(cfg.camera_position)):
         raise ConfigError("structure: camera_position must be 3 finite numbers (metres)")
     return Q, Y
