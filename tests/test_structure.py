@@ -221,6 +221,18 @@ def test_root_joint_at_the_free_end_of_a_one_sided_root_part():
     np.testing.assert_allclose(got, rod.mean(0))
     got = root_joint_position(rod, labels, 0, joints, np.array([-1, 0]), 0.0)
     np.testing.assert_allclose(got, rod.mean(0))
+    # the default (1.0) still moves a chain's end (one child) ...
+    default = StructureConfig().root_end_alignment
+    got = root_joint_position(rod, labels, 0, joints, np.array([-1, 0]), default)
+    assert abs(got[0] - 0.0) < 0.02
+    # ... but not a torso-like part with three children on one side (head and two arms on top
+    # of a torso whose legs never moved): its root joint stays at the centre, 0.7 sends it to
+    # the far end (the feet)
+    top = np.array([[0.0, 0, 0], [0.4, 0, 0], [0.38, 0.05, 0], [0.38, -0.05, 0]])
+    par = np.array([-1, 0, 0, 0])
+    np.testing.assert_allclose(root_joint_position(rod, labels, 0, top, par, default),
+                               rod.mean(0))
+    assert abs(root_joint_position(rod, labels, 0, top, par, 0.7)[0]) < 0.02
 
 
 def test_swing_angles_ignore_twist_about_the_axis():

@@ -254,8 +254,11 @@ class StructureConfig:
     eta: float = 1.0  # boundary-centroid data weight in E_Joint (Eq. 20), Table 1
     # root joint (§5.3 puts it at the root cluster's centre): when the root part's children all
     # attach on one side (mean unit direction to them at least this long), put it at the
-    # part's opposite end (shoulder of an arm, wrist of a hand); 0 = the paper's centre
-    root_end_alignment: float = 0.7
+    # part's opposite end; 1 (default, session 17) = only at a chain's end (one child, as the
+    # upper arm of an arm or a robot's base), 0.7 = also a torso with head and arms on top
+    # (before session 17: it sent a standing figure's root to its feet when the legs did not
+    # move), 0 = always the paper's centre
+    root_end_alignment: float = 1.0
     root_choice: str = "largest"  # root bone: "centroid" = centre nearest the rest-pose
     #   centroid (§5.3), "largest" = the bone with the most points
 

@@ -1005,11 +1005,12 @@ def root_joint_position(rest_points: np.ndarray, labels: np.ndarray, root: int,
 
     The paper puts the root joint at the root cluster's centre (§5.3). When all of the root
     part's children attach on one side of it (the mean of the unit vectors from its centre to
-    its child joints has length >= ``min_alignment``), as for an arm hanging from the shoulder,
-    a hand from the wrist or a robot arm from its base, the root joint is put at the part's
-    opposite end instead: the centre moved along that direction to the 3rd percentile of the
-    part's extent. Otherwise (children on several sides, as a pelvis or torso) the centre is
-    kept. ``min_alignment <= 0`` always keeps the paper's centre.
+    its child joints has length >= ``min_alignment``, up to 1e-6; 1 = a single child, the end
+    of a chain), as for an arm hanging from the shoulder or a robot arm from its base, the
+    root joint is put at the part's opposite end instead: the centre moved along that
+    direction to the 3rd percentile of the part's extent. Otherwise (children on several sides,
+    as a pelvis or torso) the centre is kept. ``min_alignment <= 0`` always keeps the paper's
+    centre.
     """
     pts = rest_points[labels == root]
     centre = pts.mean(axis=0)
@@ -1019,7 +1020,7 @@ def root_joint_position(rest_points: np.ndarray, labels: np.ndarray, root: int,
     dirs = joints[kids] - centre
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True) + 1e-12
     mean = dirs.mean(axis=0)
-    if np.linalg.norm(mean) < min_alignment:
+    if np.linalg.norm(mean) < min_alignment - 1e-6:
         return centre
     axis = mean / np.linalg.norm(mean)
     return centre + axis * float(np.quantile((pts - centre) @ axis, 0.03))
