@@ -391,5 +391,7 @@ def test_removal_cost_matches_a_numpy_oracle():
     R2[:, 1], T2[:, 1] = R[:, 0], T[:, 0]
     Y2 = np.einsum("fij,mj->fmi", R2[:, 1], Q) + T2[:, None, 1]
     assert removal_cost(Q, Y2, R2, T2, labels, 1, [0])[0] == pytest.approx(0.0, abs=1e-9)
+    with pytest.raises(ValueError, match="at least one"):
+        removal_cost(Q, Y, R, T, labels, 1, [])
     with pytest.raises(ConfigError, match="invisible_bone_fraction"):
         extract_structure(Q, Y, StructureConfig(invisible_bone_fraction=-0.1))

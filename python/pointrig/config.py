@@ -245,7 +245,7 @@ class StructureConfig:
     # to within invisible_bone_fraction * size RMS beyond its own rigid fit (size = rest-pose
     # bounding-box diagonal) moves no more visibly than that against them -> its points go to
     # them. A third of the evaluation's 1.5 % 'visibly articulates' swing; removes the small
-    # blend pieces at joints that the angle test keeps apart (10-30 deg on 1-2 % of the
+    # blend pieces at joints that the angle test keeps apart (14-58 deg on 1-2 % of the
     # points). 0 = off
     invisible_bone_fraction: float = 0.005
     refine_passes: int = 25  # maximum rounds of merge / prune / rebuild (one pruning each)

@@ -739,6 +739,8 @@ def removal_cost(Q: np.ndarray, Y: np.ndarray, R: np.ndarray, T: np.ndarray,
     b, others
         The bone and its candidate replacements (non-empty).
     """
+    if len(others) == 0:
+        raise ValueError("removal_cost needs at least one other bone")
     sel = np.flatnonzero(labels == b)
     cand = np.empty((len(sel), len(others) + 1), np.int64)
     cand[:, 0] = b
