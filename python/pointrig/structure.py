@@ -753,8 +753,12 @@ def removal_cost(Q: np.ndarray, Y: np.ndarray, R: np.ndarray, T: np.ndarray,
 
 
 def _prune(ctx: _Ctx, labels: np.ndarray, parent: np.ndarray, joints: np.ndarray,
-           counts: np.ndarray, diag: dict[str, Any]) -> np.ndarray | None:
+           R: np.ndarray, T: np.ndarray, counts: np.ndarray, diag: dict[str, Any]
+           ) -> np.ndarray | None:
     """One pruning step of §5.4 on the tree; returns new labels or ``None`` if nothing to do.
+
+    ``R, T, counts`` are the caller's :func:`fit_bones` of ``labels`` (one fit serves every
+    test below).
 
     * spurious leaf: a leaf whose parent has another child and which holds fewer than
       ``leaf_min_fraction * M`` points -> merged into its parent;
@@ -779,7 +783,6 @@ def _prune(ctx: _Ctx, labels: np.ndarray, parent: np.ndarray, joints: np.ndarray
         diag.setdefault("pruned_leaves", []).append(int(counts[b]))
         return np.where(labels == b, parent[b], labels)
     # blend bands: bones explained by per-point blending of two tree neighbours
-    R, T, _c = ctx.fit(labels, B)
     bands = []
     touching = _touch_pairs(ctx, labels, cfg.touch_min_pairs)
     for b in range(B):
@@ -818,19 +821,13 @@ def _prune(ctx: _Ctx, labels: np.ndarray, parent: np.ndarray, joints: np.ndarray
             short.append((span / max(extent, 1e-300), b))
     if short:
         span, b = min(short)
-        cand_bones = [int(parent[b])] + [int(c) for c in children[b]]
-        sel = np.flatnonzero(labels == b)
-        R, T, _c = ctx.fit(labels, B)
-        cand = np.full((len(sel), len(cand_bones)), -1, np.int64)
-        cand[:] = cand_bones
-        res = _core.cluster_residuals(ctx.Q[sel], np.ascontiguousarray(ctx.Y[:, sel]), R, T,
-                                      np.ascontiguousarray(cand))
+        _cost, to = removal_cost(ctx.Q, ctx.Y, R, T, labels, b,
+                                 [int(parent[b])] + [int(c) for c in children[b]])
         new = labels.copy()
-        new[sel] = np.array(cand_bones)[res.argmin(1)]
+        new[labels == b] = to
         diag.setdefault("short_bones_removed", []).append(round(span, 4))
         return new
     if cfg.invisible_bone_fraction > 0:
-        R, T, _c = ctx.fit(labels, B)
         best: tuple[float, int, np.ndarray] | None = None
         for b in range(B):
             if parent[b] < 0:
@@ -945,7 +942,7 @@ def extract_structure(rest_points: np.ndarray, points: np.ndarray,
         tree_pairs = []
         c_tilde = _boundary_centroids(ctx, labels, parent)
         joints = solve_joint_positions(R, T, parent, c_tilde, cfg.eta)
-        new = _prune(ctx, labels, parent, joints, counts, diag)
+        new = _prune(ctx, labels, parent, joints, R, T, counts, diag)
         if new is None:
             break
         labels = _cluster_rounds(ctx, new, cfg.post_merge_rounds)
