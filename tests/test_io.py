@@ -272,3 +272,55 @@ def test_outputs_get_the_umask_permissions_not_owner_only(tmp_path):
     finally:
         os.umask(old)
     assert stat.S_IMODE((tmp_path / "a.json").stat().st_mode) == 0o644
+
+
+def test_frame_extent_is_the_robust_box_diagonal(rng):
+    """numpy oracle: the diagonal of the 0.5-99.5 % quantile box; stray points do not count."""
+    from pointrig.sequence import frame_extent
+
+    pts = rng.uniform(-1.0, 1.0, size=(20000, 3)) * np.array([0.3, 0.9, 0.2])
+    lo, hi = np.quantile(pts, [0.005, 0.995], axis=0)
+    assert frame_extent(pts) == pytest.approx(float(np.linalg.norm(hi - lo)))
+    assert frame_extent(pts) == pytest.approx(2 * np.sqrt(0.3**2 + 0.9**2 + 0.2**2), rel=0.02)
+    stray = np.vstack([pts, [[1e4, 1e4, 1e4]] * 10])  # 0.05 % of the points, far away
+    assert frame_extent(stray) == pytest.approx(frame_extent(pts), rel=1e-3)
+    assert frame_extent(np.zeros((0, 3))) == 0.0
+
+
+def test_millimetre_input_is_refused_with_the_frame_and_the_scale(tmp_path, rng):
+    """A body scan in millimetres (about 2 m -> 2000 units) is an InputError naming the file,
+    the frame and the factor 0.001; the same frames scaled to metres pass, and 0 turns the
+    check off."""
+    from pointrig.sequence import check_units
+
+    body = rng.normal(size=(500, 3)) * np.array([0.2, 0.5, 0.1]) + np.array([0, 0, 2.5])
+    frames_mm = [1000.0 * body for _ in range(3)]
+    frames_mm[2] = 1000.0 * (body * 1.3)  # the widest frame is named
+    write_sequence(tmp_path / "mm", frames_mm, fmt="ply")
+    seq = read_sequence(tmp_path / "mm")
+    with pytest.raises(InputError) as exc:
+        check_units(seq, 30.0)
+    assert exc.value.frame == 2 and exc.value.path.name == seq.names[2]
+    assert "millimetres" in str(exc.value) and "0.001" in str(exc.value)
+    check_units(read_sequence(tmp_path / "mm", scale=0.001), 30.0)
+    check_units(seq, 0.0)
+    # a centimetre body (200 units) could be centimetres or millimetres: both are offered
+    with pytest.raises(InputError, match="centimetres.*0.01.*millimetres.*0.001"):
+        check_units(read_sequence(tmp_path / "mm", scale=0.1), 30.0)
+
+
+def test_extract_refuses_millimetres_before_writing(tmp_path, rng, capsys):
+    """The CLI exits 1 with one line and writes nothing; the Python API raises the same."""
+    from pointrig.cli import main
+    from pointrig.pipeline import extract
+
+    body = rng.normal(size=(400, 3)) * np.array([0.2, 0.5, 0.1]) + np.array([0, 0, 2.5])
+    write_sequence(tmp_path / "mm", [1000.0 * body] * 3, fmt="npy")
+    out = tmp_path / "out"
+    assert main(["extract", str(tmp_path / "mm"), "-o", str(out)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "frame 0" in err[0] and "--scale" in err[0]
+    assert not out.exists()
+    with pytest.raises(InputError, match="millimetres"):
+        extract(read_sequence(tmp_path / "mm"), out_dir=out)
+    assert not out.exists()

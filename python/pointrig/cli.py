@@ -13,7 +13,9 @@ import logging
 import sys
 from collections.abc import Sequence
 
-from .errors import ConfigError, PointrigError
+from .config import PreprocessConfig
+from .errors import ConfigError, InputError, PointrigError
+from .sequence import check_units
 
 __all__ = ["main", "build_parser"]
 
@@ -67,6 +69,10 @@ def cmd_info(args: argparse.Namespace) -> int:
     lo = ", ".join(f"{v:.3f}" for v in s["bounds_min"])
     hi = ", ".join(f"{v:.3f}" for v in s["bounds_max"])
     print(f"bounds   [{lo}] .. [{hi}] m")
+    try:
+        check_units(seq, PreprocessConfig().max_extent)
+    except InputError as exc:  # info only describes; extract refuses such input
+        print(f"note     {exc.problem}")
     return 0
 
 
@@ -120,6 +126,9 @@ def _read_configured(args: argparse.Namespace, cfg):
         crop_min=pre.crop_min, crop_max=pre.crop_max, voxel_size=pre.voxel_size,
         intrinsics=args.intrinsics, scale=args.scale, min_points=pre.min_points,
     )
+    # before the background search, whose thresholds are metres too (extract checks the
+    # sequence it is given again: the Python API reaches it without this function)
+    check_units(seq, pre.max_extent)
     if pre.background == "auto":
         seq, report = remove_background(seq, seed=cfg.registration.seed,
                                         threshold=pre.background_threshold)

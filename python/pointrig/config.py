@@ -56,6 +56,12 @@ class PreprocessConfig:
     frame_stop: int | None = None
     frame_stride: int = 1
     min_points: int = 50  # fewer points in a frame is an error
+    # a frame whose points span more than this (metres; diagonal of the box between the 0.5th
+    # and 99.5th percentiles of each coordinate) is not in metres: every other parameter is
+    # in metres, and a depth camera sees a few metres, so millimetre input (a subject spans
+    # ~2000) is an error naming the frame and the --scale to use instead of a silent
+    # one-bone result (pointrig.sequence.check_units). 0 = off
+    max_extent: float = 30.0
     # "auto": remove static floor / wall planes found in the sequence (and the speckle they
     # leave) before step 1; a plane must be static, have the rest of the scene in front of it
     # and reach well past the subject, so an already cropped recording is left unchanged

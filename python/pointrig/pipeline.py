@@ -27,7 +27,7 @@ import numpy as np
 from .config import PipelineConfig
 from .export import write_bvh, write_gltf
 from .kinematics import joint_trajectories
-from .sequence import PointSequence
+from .sequence import PointSequence, check_units
 from .skeleton import Skeleton
 
 __all__ = ["ExtractResult", "extract", "build_skeleton"]
@@ -126,12 +126,19 @@ def extract(
         Also write ``skeleton.png`` and ``skeleton.gif``.
     progress
         Called as ``progress(step, done, total, detail)``.
+
+    Raises
+    ------
+    InputError
+        When a frame spans more than ``config.preprocess.max_extent`` metres (input not in
+        metres, :func:`pointrig.sequence.check_units`), before anything is written.
     """
     from . import joints as joints_mod
     from . import registration as reg_mod
     from . import structure as struct_mod
 
     config = config or PipelineConfig()
+    check_units(seq, config.preprocess.max_extent)
     out = None if out_dir is None else Path(out_dir)
     timings: dict[str, float] = {}
 

@@ -12,7 +12,7 @@ import numpy as np
 
 from .errors import EmptyFrameError, InputError
 
-__all__ = ["PointSequence"]
+__all__ = ["PointSequence", "check_units", "frame_extent"]
 
 
 @dataclass
@@ -108,3 +108,65 @@ class PointSequence:
     def source_path(source: str) -> Path:
         """The source as a path."""
         return Path(source)
+
+
+def frame_extent(points: np.ndarray, quantile: float = 0.005) -> float:
+    """Robust size of one frame: the diagonal of the box between the ``quantile`` and
+    ``1 - quantile`` quantiles of each coordinate (a few stray points do not count).
+
+    Parameters
+    ----------
+    points
+        ``(N, 3)`` float64, in the file's units.
+    quantile
+        Fraction of the points ignored at each end of each axis.
+
+    Returns
+    -------
+    float
+        The diagonal, same units (0 for an empty frame).
+    """
+    if len(points) == 0:
+        return 0.0
+    lo, hi = np.quantile(points, [quantile, 1.0 - quantile], axis=0)
+    return float(np.linalg.norm(hi - lo))
+
+
+def check_units(seq: PointSequence, max_extent: float) -> None:
+    """Refuse a sequence that is evidently not in metres.
+
+    Every parameter of the pipeline is in metres (noise, sigma^2, radii). A frame whose
+    :func:`frame_extent` exceeds ``max_extent`` metres cannot come from one depth camera in
+    metres; most often the file is in millimetres, and the pipeline would run on it and
+    return one bone with nothing but "tracking lost" warnings.
+
+    Parameters
+    ----------
+    seq
+        The frames, ``(N_t, 3)`` each, after any scaling.
+    max_extent
+        Largest plausible frame extent, metres (``<= 0``: no check).
+
+    Raises
+    ------
+    InputError
+        Naming the widest frame (its file, when the sequence was read from a folder), its
+        extent and the scale factor that would bring it to metres.
+    """
+    if not max_extent > 0:
+        return
+    ext = np.array([frame_extent(v) for v in seq.frames])
+    if not len(ext) or ext.max() <= max_extent:
+        return
+    t = int(np.argmax(ext))
+    src = Path(str(seq.source))
+    path = src / seq.names[t] if src.is_dir() else src
+    # the unit that turns the extent into what one depth camera sees (5 cm to 10 m)
+    units = [f"{name}? scale by {f:g}" for f, name in ((0.01, "centimetres"),
+                                                        (0.001, "millimetres"))
+             if 0.05 <= ext[t] * f <= 10.0]
+    hint = " or ".join(units) or "scale it to metres"
+    raise InputError(
+        f"the points span {ext[t]:.4g} units, more than a depth camera sees in metres "
+        f"(max_extent {max_extent:g} m); pointrig works in metres: {hint} "
+        "(CLI --scale, read_sequence(scale=...)), or crop the scene", path, frame=t)
