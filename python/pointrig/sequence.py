@@ -159,7 +159,7 @@ def check_units(seq: PointSequence, max_extent: float) -> None:
     if not len(ext) or ext.max() <= max_extent:
         return
     t = int(np.argmax(ext))
-    src = Path(str(seq.source))
+    src = PointSequence.source_path(seq.source)
     path = src / seq.names[t] if src.is_dir() else src
     # the unit that turns the extent into what one depth camera sees (5 cm to 10 m)
     units = [f"{name}? scale by {f:g}" for f, name in ((0.01, "centimetres"),
