@@ -60,7 +60,8 @@ def main(argv: list[str]) -> int:
             t0 = time.perf_counter()
             reg = register_sequence(seq, dataclasses.replace(cfg.registration, **v))
             ms = 1000 * (time.perf_counter() - t0) / seq.n_frames
-            nn = cKDTree(syn.surface[0]).query(reg.rest_points)[1]
+            # rest points come from the rest frame (the middle one by default)
+            nn = cKDTree(syn.surface[reg.params["rest_frame_index"]]).query(reg.rest_points)[1]
             corr = 100 * float(np.linalg.norm(reg.points - syn.surface[:, nn], axis=2).mean())
             r, st = score_step2(reg.rest_points, reg.points, syn, cfg.structure)
             n_gt = syn.gt_joints.shape[1]

@@ -18,6 +18,13 @@ Variants are JSON overrides of :class:`~pointrig.config.StructureConfig`::
         '{}' '{"band_ratio": 0.5}'
 
 ``--wide`` adds 16 sequences (:data:`WIDE`: other seeds, glTF clips, start times, yaw, a walk).
+``--registration JSON`` registers with :class:`~pointrig.config.RegistrationConfig` overrides
+(a cache holds one registration variant, so give each its own ``--cache``); each sequence's
+line ends with the mean correspondence error of the registration (cm, against the exact
+surface), and the mean over sequences is printed before the table::
+
+    PYTHONPATH=python python benchmarks/bench_structure_real.py --cache /tmp/reg40_nocheck \
+        --wide --joints --registration '{"predict_check": 0}'
 """
 
 from __future__ import annotations
@@ -30,6 +37,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -68,21 +76,30 @@ WIDE: dict[str, tuple[str, dict]] = {
 }
 
 
-def _load(fig: str, frames: int, cache: Path | None) -> dict:
+def _load(fig: str, frames: int, cache: Path | None, registration: dict) -> dict:
     if fig in WIDE:
         src, kw = WIDE[fig]
         name = f"{fig}-{frames}.pkl"
     else:
         src, kw = fig, {"seed": 0}
         name = f"{Path(fig).stem[:14]}-{frames}-0.pkl"
+    config = dataclasses.replace(PipelineConfig().registration, **registration)
     if cache is not None and (cache / name).exists():
         with open(cache / name, "rb") as fh:
-            return pickle.load(fh)
+            d = pickle.load(fh)
+        if "registration" not in d:
+            print(f"note: {cache / name} predates session 19 and does not record its "
+                  "registration parameters", file=sys.stderr)
+        elif d["registration"] != dataclasses.asdict(config):
+            raise SystemExit(f"{cache / name} was registered with other parameters than "
+                             f"the defaults + {registration}: use another --cache")
+        return d
     if fig in WIDE and not Path(src).exists() and src.endswith(".glb"):
         return {}
     syn = synthesize(src, n_frames=frames, noise=NoiseConfig(seed=kw["seed"]), **kw)
-    reg = register_sequence(syn.to_point_sequence(), PipelineConfig().registration)
-    d = {"syn": syn, "rest": reg.rest_points, "pts": reg.points}
+    reg = register_sequence(syn.to_point_sequence(), config)
+    d = {"syn": syn, "rest": reg.rest_points, "pts": reg.points,
+         "registration": dataclasses.asdict(config), "rest_frame": reg.params["rest_frame_index"]}
     if cache is not None:
         cache.mkdir(parents=True, exist_ok=True)
         with open(cache / name, "wb") as fh:
@@ -98,15 +115,24 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--joints", action="store_true", help="also run step 3 on the registered "
                     "sequences (mode reg+3)")
     ap.add_argument("--wide", action="store_true", help="also the 16 sequences of WIDE")
+    ap.add_argument("--registration", default="{}", help="RegistrationConfig overrides (JSON) "
+                    "for the registered mode; a cache holds one registration variant")
     a = ap.parse_args(argv)
+    reg_over = json.loads(a.registration)
     variants = [json.loads(v) for v in a.variants]
     rows: dict[tuple[str, str], list[tuple[float, ...]]] = {}
+    corr: list[float] = []
     for fig in FIGURES + (list(WIDE) if a.wide else []):
-        d = _load(fig, a.frames, a.cache)
+        d = _load(fig, a.frames, a.cache, reg_over)
         if not d:
             continue
         syn = d["syn"]
         s = syn.surface
+        # correspondence error: each rest point against its nearest exact sample of the rest
+        # frame, followed through every frame (caches before session 19 lack "rest_frame")
+        rf = d.get("rest_frame", s.shape[0] // 2)
+        nn = cKDTree(s[rf]).query(d["rest"])[1]
+        corr.append(100 * float(np.linalg.norm(d["pts"] - s[:, nn], axis=2).mean()))
         idx = np.random.default_rng(0).choice(s.shape[1], min(2000, s.shape[1]), replace=False)
         inputs = {"exact": (s[0, idx], s[:, idx]), "reg": (d["rest"], d["pts"])}
         frames = syn.to_point_sequence().frames if a.joints else None
@@ -130,8 +156,10 @@ def main(argv: list[str]) -> int:
                         (r3.recall, r3.precision, 100 * r3.normalized_error,
                          st.n_bones / max(r3.n_scorable, 1), 100 * r3.raw_error))
                     line.append(f"reg+3 {r3.recall:.2f}/{r3.precision:.2f}")
-        print(f"{Path(fig).stem[:15]:<15} scorable {r.n_scorable:2d}  " + " | ".join(line),
-              flush=True)
+        print(f"{Path(fig).stem[:15]:<15} scorable {r.n_scorable:2d}  " + " | ".join(line)
+              + f" | corr {corr[-1]:.2f} cm", flush=True)
+    print(f"\nregistration {json.dumps(reg_over)}: mean correspondence error "
+          f"{np.mean(corr):.3f} cm over {len(corr)} sequences")
     print(f"\n{'variant':<44} {'mode':<6} {'recall':>6} {'prec':>5} {'norm cm':>7} "
           f"{'raw cm':>6} {'bones/scorable':>14}")
     for (v, mode), vals in rows.items():
