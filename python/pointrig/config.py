@@ -120,6 +120,12 @@ class RegistrationConfig:
     sigma2_anneal: float = 0.5  # coarse-to-fine: sigma^2 capped at anneal * previous until sigma2_init (1 = off)
     rigid_iterations: int = 2  # leading EM iterations that do a global weighted-Kabsch step
     predict_velocity: float = 1.0  # constant-velocity prediction of node transforms (0 = none)
+    # a frame starts from the previous pose instead of the prediction when that pose's misfit
+    # to the frame (symmetric chamfer, each distance capped at 3 sqrt(sigma2_start_max)) is
+    # below predict_check x the prediction's: after a jump or a sudden stop the prediction
+    # repeats the jump and loses limbs for good. 1 = whichever explains the frame better,
+    # 0 = always predict (docs/registration.md, session 19)
+    predict_check: float = 1.0
     cutoff: float = 3.5  # truncated E-step: pairs beyond cutoff * sigma ignored (0 = dense); was 5.0
     single_precision: bool = True  # float32 E-step inner loops (float64 reductions)
     gn_damping: float = 1e-4  # Levenberg damping of the Gauss-Newton step (x diag)

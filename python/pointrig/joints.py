@@ -47,6 +47,7 @@ from . import _core
 from .config import JointsConfig
 from .errors import ConfigError, InputError
 from .kinematics import joint_trajectories, solve_joint_positions
+from .preprocess import chamfer_misfit
 from .view import view_depth_correct
 
 __all__ = ["JointsResult", "StructureLike", "learn_joints", "e_step", "e_step_numpy",
@@ -536,11 +537,6 @@ def track_bones(
     # the frame (template on data, and no data left without template)
     trunc = 3.0 * float(np.sqrt(tau_max))
 
-    def misfit(X: np.ndarray, v: np.ndarray, tree: Any) -> float:
-        d_xv = np.minimum(tree.query(X)[0], trunc).mean()
-        d_vx = np.minimum(cKDTree(X).query(v)[0], trunc).mean()
-        return float(d_xv + d_vx)
-
     order = [rest_index] + list(range(rest_index + 1, F)) + list(range(rest_index - 1, -1, -1))
     for done, t in enumerate(order, start=1):
         if progress is not None and done > 1:
@@ -570,7 +566,7 @@ def track_bones(
         best = None
         for Rs, Ts in starts:
             Rt, Tt, X = fit_frame(v, packed, tree, Rs, Ts)
-            score = misfit(X, v, tree) if len(starts) > 1 else 0.0
+            score = chamfer_misfit(X, v, trunc, tree) if len(starts) > 1 else 0.0
             if best is None or score < best[0]:
                 best = (score, Rt, Tt)
         assert best is not None

@@ -25,6 +25,7 @@ __all__ = [
     "remove_statistical_outliers",
     "mls_project",
     "farthest_point_sampling",
+    "chamfer_misfit",
     "rest_surface",
     "BackgroundPlane",
     "BackgroundReport",
@@ -87,6 +88,36 @@ def farthest_point_sampling(points: np.ndarray, n: int, seed: int = 0) -> np.nda
         idx[i] = int(np.argmax(d))
         d = np.minimum(d, np.sum((points - points[idx[i]]) ** 2, axis=1))
     return idx
+
+
+def chamfer_misfit(template: np.ndarray, data: np.ndarray, trunc: float,
+                   data_tree: cKDTree | None = None) -> float:
+    """How well a posed template explains a frame: the symmetric, truncated chamfer distance.
+
+    Mean over template points of the distance to the nearest data point plus the mean over
+    data points of the distance to the nearest template point, each distance capped at
+    ``trunc`` so that outliers and parts one side does not see count a bounded amount.
+
+    Parameters
+    ----------
+    template
+        ``(M, 3)`` posed template points, metres.
+    data
+        ``(N, 3)`` observed points of the frame, metres (``N >= 1``).
+    trunc
+        Cap of each nearest-point distance, metres (> 0).
+    data_tree
+        A ``cKDTree`` of ``data`` to reuse (built if ``None``).
+
+    Returns
+    -------
+    float
+        The misfit, metres (0 when each set lies on the other; at most ``2 * trunc``).
+    """
+    tree = cKDTree(data) if data_tree is None else data_tree
+    d_td = np.minimum(tree.query(template)[0], trunc).mean()
+    d_dt = np.minimum(cKDTree(template).query(data)[0], trunc).mean()
+    return float(d_td + d_dt)
 
 
 def rest_surface(

@@ -31,7 +31,7 @@ from . import _core
 from .config import RegistrationConfig
 from .errors import ConfigError, FormatError
 from .io import write_npz
-from .preprocess import farthest_point_sampling, rest_surface
+from .preprocess import chamfer_misfit, farthest_point_sampling, rest_surface
 from .sequence import PointSequence
 
 __all__ = [
@@ -250,6 +250,11 @@ def _validate(config: RegistrationConfig, n_frames: int) -> None:
         raise ConfigError("[registration] sigma^2 parameters must be positive")
     if config.max_iterations < 1 or config.n_rest_points < 10:
         raise ConfigError("[registration] max_iterations >= 1 and n_rest_points >= 10 required")
+    if not 0.0 <= config.predict_check <= 1.0:
+        raise ConfigError(
+            "[registration] predict_check must be in [0, 1] (0 = always start from the "
+            f"prediction), got {config.predict_check!r}"
+        )
     if not (config.node_geodesic_ratio == 0 or config.node_geodesic_ratio >= 1):
         raise ConfigError(
             "[registration] node_geodesic_ratio must be 0 (off) or >= 1 (a geodesic path is "
@@ -318,7 +323,8 @@ def register_sequence(
 
     Frames after the rest frame are registered forwards from it and frames before it
     backwards, each starting from its neighbour's result (with constant-velocity prediction
-    when ``predict_velocity > 0``).
+    when ``predict_velocity > 0``, kept only if it explains the frame better than the
+    neighbour's own pose, ``predict_check``).
 
     Parameters
     ----------
@@ -383,6 +389,18 @@ def register_sequence(
                 None if prev2 is None else prev2[1], graph.nodes, config.predict_velocity,
             )
         x = seq.frames[t]
+        if prev2 is not None and config.predict_velocity > 0 and config.predict_check > 0 \
+                and len(x):
+            # hold the previous pose instead when it explains the frame better than the
+            # prediction: after a jump or a sudden stop the prediction repeats the jump
+            tree = cKDTree(x)
+            trunc = 3.0 * float(np.sqrt(config.sigma2_start_max))
+            m_hold = chamfer_misfit(points[t - step], x, trunc, tree)
+            m_pred = chamfer_misfit(g.deform(r_init, t_init), x, trunc, tree)
+            if m_hold < config.predict_check * m_pred:
+                log.debug("frame %d: the previous pose explains it better than the prediction "
+                          "(misfit %.4f < %.4f m); holding it", t, m_hold, m_pred)
+                r_init, t_init = prev[0].copy(), prev[1].copy()
         res = _register_one(g, x, r_init, t_init, config, kw)
         frac = res["n_p"] / max(res["n_data"], 1)
         if frac < config.lost_fraction and prev is not None:
