@@ -359,6 +359,10 @@ class JointsConfig:
     track_velocity: float = 1.0  # constant-velocity prediction gain (0 = previous frame)
     track_tau_max: float = 0.01  # cap of the per-frame starting tau, m^2 at 1.8 m (scaled)
     track_anneal: float = 0.5  # coarse-to-fine: tau at most this x the previous until tau_init
+    # start from the previous frame's pose instead of the prediction when it explains the frame
+    # better by this factor (symmetric chamfer, as [registration] predict_check; 0 = always
+    # predict)
+    track_predict_check: float = 1.0
     track_from_structure: bool = True  # also fit each frame from step 2's pose of it and keep
     #   the pose with the smaller symmetric chamfer misfit to the frame
     # --- truncated E-step (Eq. 4 restricted to near neighbours) ---

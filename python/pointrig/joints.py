@@ -460,6 +460,9 @@ def track_bones(
     misfit to the frame (template to data plus data to template, each distance truncated at
     ``3 sqrt(track_tau_max)``) is kept: the prediction recovers what step 1 lost, step 2's pose
     keeps what step 1 got right (a rigid-bone prediction drifts on smoothly bending bodies).
+    The prediction itself gives way to the previous frame's pose when that pose's misfit is
+    below ``track_predict_check`` times the prediction's (after a jump the prediction repeats
+    it).
     Frames without points keep the prediction.
 
     Parameters
@@ -562,6 +565,16 @@ def track_bones(
             T[t] = _fixed_joint_translations(Rt, Tt[root], joints, parent, skin)[0]
             continue
         tree = cKDTree(v)
+        if t != rest_index and (p2 - rest_index) * s >= 0 and config.track_predict_check > 0:
+            # the previous pose instead of the prediction when it explains the frame better
+            # (a sudden jump or stop: the prediction repeats the jump)
+            Rh, Th = R[p1], T[p1]
+            Xh = _fixed_joint_translations(Rh, Th[root], joints, parent, skin)[1]
+            Xp = _fixed_joint_translations(starts[0][0], starts[0][1][root], joints, parent,
+                                           skin)[1]
+            if chamfer_misfit(Xh, v, trunc, tree) < \
+                    config.track_predict_check * chamfer_misfit(Xp, v, trunc, tree):
+                starts[0] = (Rh.copy(), Th.copy())
         packed = pack_frames([v])
         best = None
         for Rs, Ts in starts:
@@ -705,9 +718,11 @@ def learn_joints(
     """
     cfg = config or JointsConfig()  # its choices (mode, init, ...) were checked when made
     if cfg.init == "track" and not (cfg.track_iterations >= 1 and 0 < cfg.track_anneal <= 1
-                                    and cfg.track_tau_max > 0 and cfg.track_velocity >= 0):
+                                    and cfg.track_tau_max > 0 and cfg.track_velocity >= 0
+                                    and 0 <= cfg.track_predict_check <= 1):
         raise ConfigError("joints: track_iterations >= 1, 0 < track_anneal <= 1, "
-                          "track_tau_max > 0 and track_velocity >= 0 are required")
+                          "track_tau_max > 0, track_velocity >= 0 and "
+                          "0 <= track_predict_check <= 1 are required")
     Q = np.ascontiguousarray(rest_points, dtype=np.float64)
     Y = np.ascontiguousarray(registered, dtype=np.float64)
     frames = [np.ascontiguousarray(v, dtype=np.float64) for v in frames]
