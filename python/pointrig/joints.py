@@ -565,7 +565,8 @@ def track_bones(
             T[t] = _fixed_joint_translations(Rt, Tt[root], joints, parent, skin)[0]
             continue
         tree = cKDTree(v)
-        if t != rest_index and (p2 - rest_index) * s >= 0 and config.track_predict_check > 0:
+        if t != rest_index and (p2 - rest_index) * s >= 0 and config.track_velocity > 0 \
+                and config.track_predict_check > 0:
             # the previous pose instead of the prediction when it explains the frame better
             # (a sudden jump or stop: the prediction repeats the jump)
             Rh, Th = R[p1], T[p1]
