@@ -569,8 +569,8 @@ def track_bones(
                 and config.track_predict_check > 0:
             # the previous pose instead of the prediction when it explains the frame better
             # (a sudden jump or stop: the prediction repeats the jump)
-            Rh, Th = R[p1], T[p1]
-            Xh = _fixed_joint_translations(Rh, Th[root], joints, parent, skin)[1]
+            Rh, Th = R[p1], T[p1]  # its translations already meet at the joints
+            Xh = skin(Rh, Th)
             Xp = _fixed_joint_translations(starts[0][0], starts[0][1][root], joints, parent,
                                            skin)[1]
             if chamfer_misfit(Xh, v, trunc, tree) < \
