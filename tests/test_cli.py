@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 
@@ -56,3 +57,17 @@ def test_bad_config_choice_fails_before_step_1(tmp_path, rng, capsys):
     err = capsys.readouterr().err
     assert "[joints] init must be one of" in err and len(err.strip().splitlines()) == 1
     assert not out.exists()
+
+
+def test_closed_stdout_pipe_ends_quietly():
+    # `pointrig synth --list | head -0`: the reader is gone before the first write; the CLI
+    # must end with 128 + SIGPIPE and no traceback (before: BrokenPipeError traceback)
+    r, w = os.pipe()
+    os.close(r)
+    try:
+        res = subprocess.run([sys.executable, "-m", "pointrig", "synth", "--list"], stdout=w,
+                             stderr=subprocess.PIPE, text=True, timeout=120)
+    finally:
+        os.close(w)
+    assert res.returncode == 141
+    assert "Traceback" not in res.stderr and "BrokenPipe" not in res.stderr
