@@ -18,9 +18,11 @@ from pointrig.structure import (
     fit_bones,
     relative_rotation_angles,
     removal_cost,
+    skeleton_distance,
     to_skeleton,
     write_structure_outputs,
 )
+from pointrig.kinematics import joint_trajectories
 from structure_helpers import make_sequence
 
 
@@ -395,3 +397,68 @@ def test_removal_cost_matches_a_numpy_oracle():
         removal_cost(Q, Y, R, T, labels, 1, [])
     with pytest.raises(ConfigError, match="invisible_bone_fraction"):
         extract_structure(Q, Y, StructureConfig(invisible_bone_fraction=-0.1))
+
+
+def _skeleton_distance_oracle(A, B, cap):
+    """Loop-by-loop version of skeleton_distance: per joint, the capped mean-over-frames
+    distance to the nearest joint of the other skeleton; mean over both joint sets."""
+    costs = []
+    for X, Z in ((A, B), (B, A)):
+        for i in range(X.shape[1]):
+            best = min(np.mean([np.linalg.norm(X[t, i] - Z[t, j]) for t in range(X.shape[0])])
+                       for j in range(Z.shape[1]))
+            costs.append(min(best, cap))
+    return float(np.mean(costs))
+
+
+def test_skeleton_distance_matches_a_loop_oracle_and_counts_missing_joints():
+    rng = np.random.default_rng(5)
+    A = rng.normal(size=(7, 5, 3))
+    B = np.concatenate([A[:, :3] + 0.01 * rng.normal(size=(7, 3, 3)),
+                        rng.normal(size=(7, 2, 3)) + 5.0], axis=1)
+    for cap in (0.02, 0.5, 100.0):
+        assert skeleton_distance(A, B, cap) == pytest.approx(
+            _skeleton_distance_oracle(A, B, cap), rel=1e-12)
+        assert skeleton_distance(A, B, cap) == pytest.approx(skeleton_distance(B, A, cap))
+    assert skeleton_distance(A, A, 0.1) == 0.0
+    # a joint the other skeleton lacks costs the cap: 5 + 4 joints, one unmatched each way
+    C = A[:, :4]
+    assert skeleton_distance(A, C, 0.1) == pytest.approx(0.1 / 9)
+
+
+def test_seed_ensemble_returns_the_medoid_run():
+    # oracle: every seed run alone (ensemble_seeds = 1), the pairwise distances by the loop
+    # oracle, the medoid by hand; the ensemble must return exactly that run
+    # (at this noise level the runs differ, and the medoid is not the first seed)
+    d = make_sequence("humanoid", n_points=900, n_frames=12, noise=0.01, seed=2)
+    base = StructureConfig(n_clusters=25, seed=4)
+    n, radius = 4, 0.03
+    size = float(np.linalg.norm(d["rest"].max(0) - d["rest"].min(0)))
+    runs = [extract_structure(d["rest"], d["points"],
+                              StructureConfig(n_clusters=25, seed=4 + i, ensemble_seeds=1))
+            for i in range(n)]
+    traj = [joint_trajectories(r.joints_rest, r.R, r.T, r.bone_parent) for r in runs]
+    cost = [sum(_skeleton_distance_oracle(traj[a], traj[b], radius * size)
+                for b in range(n) if b != a) for a in range(n)]
+    m = int(np.argmin(cost))
+    assert m != 0
+    ens = extract_structure(d["rest"], d["points"], StructureConfig(
+        n_clusters=25, seed=4, ensemble_seeds=n, ensemble_radius=radius))
+    e = ens.diagnostics["ensemble"]
+    assert e["seeds"] == [4, 5, 6, 7] and e["chosen_seed"] == 4 + m
+    assert e["n_bones"] == [r.n_bones for r in runs]
+    np.testing.assert_array_equal(ens.labels, runs[m].labels)
+    np.testing.assert_array_equal(ens.bone_parent, runs[m].bone_parent)
+    np.testing.assert_allclose(ens.joints_rest, runs[m].joints_rest)
+    assert len(e["joint_support"]) == ens.n_bones
+    assert all(0.0 <= v <= 1.0 for v in e["joint_support"])
+    assert base.ensemble_seeds == 5  # the default runs an ensemble
+
+
+@pytest.mark.parametrize("field,value", [("ensemble_seeds", 0), ("ensemble_seeds", 2.5),
+                                         ("ensemble_radius", 0.0),
+                                         ("ensemble_radius", float("nan"))])
+def test_bad_ensemble_parameters_raise(field, value):
+    d = make_sequence("arm", n_points=200, n_frames=4, noise=0.0)
+    with pytest.raises(ConfigError, match=field):
+        extract_structure(d["rest"], d["points"], StructureConfig(**{field: value}))

@@ -178,6 +178,13 @@ class StructureConfig:
     n_clusters: int = 30  # initial k for k-means (§5.2); refinement removes the extra ones
     cluster_rounds: int = 10  # rounds of (i) Kabsch fit (Eq. 14), (ii) relabel, (iii) vote (§5.2)
     seed: int = 0  # k-means++ seeding; the whole step is deterministic given the seed
+    # seed ensemble (our deviation, docs/structure.md "Session 20"): run the whole step from
+    # the seeds seed .. seed + ensemble_seeds - 1 and keep the medoid run, the one whose joint
+    # trajectories are nearest the other runs' (each joint's mean distance to the nearest
+    # joint of the other run, capped at ensemble_radius * size, size = rest-pose bounding-box
+    # diagonal). One run's boundaries depend on its k-means start; 1 = one run (the paper)
+    ensemble_seeds: int = 5
+    ensemble_radius: float = 0.03
     kmeans_iterations: int = 30  # Lloyd iterations of the k-means initialisation
     # k-means features = [rest position, trajectory_weight * s * displacements (y^t - q)]
     # with s making both blocks carry the same total variance (0 = rest positions only)

@@ -55,6 +55,7 @@ __all__ = [
     "relative_rotation_angles",
     "relative_rotation_range",
     "removal_cost",
+    "skeleton_distance",
     "write_structure_outputs",
 ]
 
@@ -881,12 +882,26 @@ def _check_inputs(rest_points: np.ndarray, points: np.ndarray, cfg: StructureCon
                           f"size; 0 = off), got {cfg.invisible_bone_fraction!r}")
     if len(cfg.camera_position) != 3 or not np.all(np.isfinite(cfg.camera_position)):
         raise ConfigError("structure: camera_position must be 3 finite numbers (metres)")
+    if not (isinstance(cfg.ensemble_seeds, int) and cfg.ensemble_seeds >= 1):
+        raise ConfigError("structure: ensemble_seeds must be an integer >= 1 (1 = one run), "
+                          f"got {cfg.ensemble_seeds!r}")
+    if not (np.isfinite(cfg.ensemble_radius) and cfg.ensemble_radius > 0):
+        raise ConfigError("structure: ensemble_radius must be > 0 (fraction of the size), "
+                          f"got {cfg.ensemble_radius!r}")
     return Q, Y
 
 
 def extract_structure(rest_points: np.ndarray, points: np.ndarray,
                       config: StructureConfig | None = None) -> StructureResult:
     """Skeletal structure from a registered sequence (§5).
+
+    With ``config.ensemble_seeds = n > 1`` (our deviation, docs/structure.md "Session 20") the
+    whole step runs from the k-means seeds ``seed, ..., seed + n - 1`` and returns the
+    *medoid* run: the one whose joint trajectories are closest to the other runs' (see
+    :func:`skeleton_distance`). A single run's bone boundaries depend on the k-means start,
+    so two nearly equal registrations can give skeletons that differ by several joints; the
+    medoid is the typical one. Runs share the neighbourhoods (``_Ctx``), so the cost is about
+    ``n`` times the clustering and refinement.
 
     Parameters
     ----------
@@ -900,6 +915,9 @@ def extract_structure(rest_points: np.ndarray, points: np.ndarray,
     Returns
     -------
     StructureResult
+        The chosen run; ``diagnostics["ensemble"]`` records every run's seed and bone count,
+        the chosen seed and each chosen joint's support (fraction of the other runs with a
+        joint within ``ensemble_radius`` of the size).
 
     Raises
     ------
@@ -912,12 +930,78 @@ def extract_structure(rest_points: np.ndarray, points: np.ndarray,
     Q, Y = _check_inputs(rest_points, points, cfg)
     t0 = time.perf_counter()
     ctx = _Ctx(Q, Y, cfg)
+    view_diag: dict[str, Any] = {}
+    view_camera = _view_camera(Q, cfg, view_diag)
+    n = cfg.ensemble_seeds
+    features = kmeans_features(Q, Y, cfg)  # the same for every seed
+    runs = [_extract_once(ctx, features, cfg.seed + i, view_camera, view_diag)
+            for i in range(n)]
+    if n == 1:
+        best = runs[0]
+    else:
+        traj = [joint_trajectories(r.joints_rest, r.R, r.T, r.bone_parent) for r in runs]
+        cap = cfg.ensemble_radius * ctx.size
+        D = np.zeros((n, n))
+        for a in range(n):
+            for b in range(a + 1, n):
+                D[a, b] = D[b, a] = skeleton_distance(traj[a], traj[b], cap)
+        m = int(np.argmin(D.sum(axis=1)))  # ties: the lowest seed
+        best = runs[m]
+        support = [float(np.mean([_nearest_joint_distance(traj[m][:, j], traj[b]) < cap
+                                  for b in range(n) if b != m]))
+                   for j in range(best.n_bones)]
+        best.diagnostics["ensemble"] = {
+            "seeds": [cfg.seed + i for i in range(n)],
+            "n_bones": [r.n_bones for r in runs],
+            "chosen_seed": cfg.seed + m,
+            "mean_distance_m": [round(float(v) / (n - 1), 5) for v in D.sum(axis=1)],
+            "joint_support": [round(v, 3) for v in support],
+        }
+        log.info("structure: seeds %s -> %s bones, medoid seed %d", best.diagnostics[
+            "ensemble"]["seeds"], [r.n_bones for r in runs], cfg.seed + m)
+    best.diagnostics["time_total_s"] = round(time.perf_counter() - t0, 4)
+    return best
+
+
+def _nearest_joint_distance(a: np.ndarray, B: np.ndarray) -> float:
+    """Mean-over-frames distance (m) from joint trajectory ``a (F, 3)`` to the nearest of
+    ``B (F, J, 3)``."""
+    return float(np.linalg.norm(B - a[:, None, :], axis=2).mean(axis=0).min())
+
+
+def skeleton_distance(A: np.ndarray, B: np.ndarray, cap: float) -> float:
+    """Symmetric distance between two skeletons' joint trajectories, metres.
+
+    Each joint's distance to the other skeleton is the mean over frames of its distance to
+    the nearest joint there (the nearest by that mean), capped at ``cap``; the result is the
+    mean over the joints of both skeletons. A joint that the other skeleton lacks costs
+    ``cap``, so the distance counts missing and extra joints as well as displaced ones.
+
+    Parameters
+    ----------
+    A, B
+        ``(F, Ja, 3)`` and ``(F, Jb, 3)`` joint positions per frame, metres (same frames).
+    cap
+        Largest cost of one joint, metres.
+    """
+    d = np.linalg.norm(A[:, :, None, :] - B[:, None, :, :], axis=3).mean(axis=0)  # (Ja, Jb)
+    return float((np.minimum(d.min(axis=1), cap).sum() + np.minimum(d.min(axis=0), cap).sum())
+                 / (d.shape[0] + d.shape[1]))
+
+
+def _extract_once(ctx: _Ctx, features: np.ndarray, seed: int,
+                  view_camera: np.ndarray | None, view_diag: dict[str, Any]) -> StructureResult:
+    """One run of step 2 from the k-means seed ``seed`` on the k-means ``features`` (``(M,
+    d)``, :func:`kmeans_features`); ``view_camera`` and its diagnostics ``view_diag`` come from
+    :func:`_view_camera`."""
+    cfg = ctx.cfg
+    Q = ctx.Q
+    t0 = time.perf_counter()
     M = ctx.M
     k = int(min(cfg.n_clusters, M))
-    diag: dict[str, Any] = {"n_init": k}
-    view_camera = _view_camera(Q, cfg, diag)
-    rng = np.random.default_rng(cfg.seed)
-    labels = _kmeans(kmeans_features(Q, Y, cfg), k, cfg.kmeans_iterations, rng)
+    diag: dict[str, Any] = {"n_init": k, "seed": seed, **view_diag}
+    rng = np.random.default_rng(seed)
+    labels = _kmeans(features, k, cfg.kmeans_iterations, rng)
     labels = _cluster_rounds(ctx, labels, cfg.cluster_rounds)
     diag["n_after_clustering"] = int(labels.max() + 1)
     diag["time_clustering_s"] = round(time.perf_counter() - t0, 4)
@@ -963,15 +1047,15 @@ def extract_structure(rest_points: np.ndarray, points: np.ndarray,
         joints = solve_joint_positions(R, T, parent, c_tilde, cfg.eta)
     joints = joints.copy()
     joints[root] = root_joint_position(Q, labels, root, joints, parent, cfg.root_end_alignment)
-    res_own = _core.cluster_residuals(Q, Y, R, T, np.ascontiguousarray(labels[:, None]))[:, 0]
+    res_own = _core.cluster_residuals(Q, ctx.Y, R, T, np.ascontiguousarray(labels[:, None]))[:, 0]
     rms = [float(np.sqrt(res_own[labels == b].mean() / ctx.F)) for b in range(B)]
     diag.update({
         "n_bones": int(B), "refine_passes": passes, "rms_residual_m": rms,
         "counts": [int(c) for c in counts], "rms_radius_m": ctx.rms_radius,
-        "time_total_s": round(time.perf_counter() - t0, 4),
+        "time_run_s": round(time.perf_counter() - t0, 4),
     })
-    log.info("structure: k=%d -> %d clusters -> %d bones in %.2fs", k,
-             diag["n_after_clustering"], B, diag["time_total_s"])
+    log.info("structure (seed %d): k=%d -> %d clusters -> %d bones in %.2fs", seed, k,
+             diag["n_after_clustering"], B, diag["time_run_s"])
     return StructureResult(labels=labels, bone_parent=parent, R=R, T=T, joints_rest=joints,
                            c_tilde=c_tilde, root=root, rest_points=Q, diagnostics=diag,
                            view_camera=view_camera,
