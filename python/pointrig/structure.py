@@ -941,21 +941,23 @@ def extract_structure(rest_points: np.ndarray, points: np.ndarray,
     else:
         traj = [joint_trajectories(r.joints_rest, r.R, r.T, r.bone_parent) for r in runs]
         cap = cfg.ensemble_radius * ctx.size
+        # (Ja, Jb) mean-over-frames joint distances of every ordered pair of runs, once
+        dist = {(a, b): _joint_distances(traj[a], traj[b])
+                for a in range(n) for b in range(a + 1, n)}
+        dist.update({(b, a): d.T for (a, b), d in list(dist.items())})
         D = np.zeros((n, n))
-        for a in range(n):
-            for b in range(a + 1, n):
-                D[a, b] = D[b, a] = skeleton_distance(traj[a], traj[b], cap)
+        for (a, b), d in dist.items():
+            D[a, b] = _capped_distance(d, cap)
         m = int(np.argmin(D.sum(axis=1)))  # ties: the lowest seed
         best = runs[m]
-        support = [float(np.mean([_nearest_joint_distance(traj[m][:, j], traj[b]) < cap
-                                  for b in range(n) if b != m]))
-                   for j in range(best.n_bones)]
+        # support of each chosen joint: fraction of the other runs with a joint within cap
+        support = np.mean([dist[m, b].min(axis=1) < cap for b in range(n) if b != m], axis=0)
         best.diagnostics["ensemble"] = {
             "seeds": [cfg.seed + i for i in range(n)],
             "n_bones": [r.n_bones for r in runs],
             "chosen_seed": cfg.seed + m,
             "mean_distance_m": [round(float(v) / (n - 1), 5) for v in D.sum(axis=1)],
-            "joint_support": [round(v, 3) for v in support],
+            "joint_support": [round(float(v), 3) for v in support],
         }
         log.info("structure: seeds %s -> %s bones, medoid seed %d", best.diagnostics[
             "ensemble"]["seeds"], [r.n_bones for r in runs], cfg.seed + m)
@@ -963,10 +965,16 @@ def extract_structure(rest_points: np.ndarray, points: np.ndarray,
     return best
 
 
-def _nearest_joint_distance(a: np.ndarray, B: np.ndarray) -> float:
-    """Mean-over-frames distance (m) from joint trajectory ``a (F, 3)`` to the nearest of
-    ``B (F, J, 3)``."""
-    return float(np.linalg.norm(B - a[:, None, :], axis=2).mean(axis=0).min())
+def _joint_distances(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """``(Ja, Jb)`` mean over frames of the distance between every joint of ``A (F, Ja, 3)``
+    and every joint of ``B (F, Jb, 3)``, metres."""
+    return np.linalg.norm(A[:, :, None, :] - B[:, None, :, :], axis=3).mean(axis=0)
+
+
+def _capped_distance(d: np.ndarray, cap: float) -> float:
+    """:func:`skeleton_distance` from the ``(Ja, Jb)`` matrix of :func:`_joint_distances`."""
+    return float((np.minimum(d.min(axis=1), cap).sum() + np.minimum(d.min(axis=0), cap).sum())
+                 / (d.shape[0] + d.shape[1]))
 
 
 def skeleton_distance(A: np.ndarray, B: np.ndarray, cap: float) -> float:
@@ -984,9 +992,7 @@ def skeleton_distance(A: np.ndarray, B: np.ndarray, cap: float) -> float:
     cap
         Largest cost of one joint, metres.
     """
-    d = np.linalg.norm(A[:, :, None, :] - B[:, None, :, :], axis=3).mean(axis=0)  # (Ja, Jb)
-    return float((np.minimum(d.min(axis=1), cap).sum() + np.minimum(d.min(axis=0), cap).sum())
-                 / (d.shape[0] + d.shape[1]))
+    return _capped_distance(_joint_distances(A, B), cap)
 
 
 def _extract_once(ctx: _Ctx, features: np.ndarray, seed: int,
