@@ -58,8 +58,7 @@ def variants(cfg: PipelineConfig) -> dict[str, PipelineConfig]:
 
 
 def score(pred: np.ndarray, synth) -> dict:
-    rep = evaluate(pred, synth.gt_joints, synth.joint_parents, skinned=synth.skinned,
-                   surface=synth.surface, surface_labels=synth.surface_labels)
+    rep = evaluate(pred, synth.gt_joints, synth.joint_parents, **synth.eval_kwargs())
     return {"recall": rep.recall, "precision": rep.precision, "raw_cm": 100 * rep.raw_error,
             "norm_cm": 100 * rep.normalized_error, "pred": int(pred.shape[1])}
 

@@ -36,8 +36,7 @@ FIGURES = ["human", "upper_body", "arm", "hand", "quadruped", "snake"] + [
 
 def score_joints(joint_positions: np.ndarray, syn):
     """``EvalReport`` of predicted joints ``(F, J, 3)`` (metres) against ``syn``'s ground truth."""
-    return evaluate(joint_positions, syn.gt_joints, syn.joint_parents, skinned=syn.skinned,
-                    surface=syn.surface, surface_labels=syn.surface_labels)
+    return evaluate(joint_positions, syn.gt_joints, syn.joint_parents, **syn.eval_kwargs())
 
 
 def score_step2(rest: np.ndarray, points: np.ndarray, syn, config):

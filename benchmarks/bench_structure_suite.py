@@ -84,8 +84,7 @@ def run_one(Y: np.ndarray, syn, cfg: StructureConfig) -> dict:
     r = extract_structure(Y[0], Y, cfg)
     dt = time.perf_counter() - t0
     pj = joint_trajectories(r.joints_rest, r.R, r.T, r.bone_parent)
-    rep = evaluate(pj, syn.gt_joints, syn.joint_parents, skinned=syn.skinned,
-                   surface=syn.surface, surface_labels=syn.surface_labels)
+    rep = evaluate(pj, syn.gt_joints, syn.joint_parents, **syn.eval_kwargs())
     return {"B": r.n_bones, "S": rep.n_scorable, "recall": rep.recall,
             "precision": rep.precision, "nerr": rep.normalized_error / rep.subject_size,
             "time": dt, "missed": [row.name for row in rep.rows

@@ -347,8 +347,7 @@ def synth_scores(case: SynthCase, joints_rest, R, T) -> dict:
 
     seq = case.seq
     pred = joint_trajectories(joints_rest, R, T, case.structure.bone_parent)
-    rep = evaluate(pred, seq.gt_joints, seq.joint_parents, surface=seq.surface,
-                   surface_labels=seq.surface_labels, skinned=seq.skinned)
+    rep = evaluate(pred, seq.gt_joints, seq.joint_parents, **seq.eval_kwargs())
     # also the direct per-bone error (bone b's joint vs the GT joint it came from)
     d = np.linalg.norm(pred - seq.gt_joints[:, case.bone_joint], axis=2).mean(0)
     nr = case.structure.bone_parent >= 0

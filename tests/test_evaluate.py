@@ -156,6 +156,98 @@ def test_scorable_rules():
     assert mask2.tolist() == [True, True, True, False, True]
 
 
+def _lbs_chain(F: int = 12):
+    """A 4-bone rig with LBS skin and its exact transforms ``T_frame_rest``.
+
+    Bones: 0 root (moves in the world, no skin), 1 torso (skinned, rigid to 0), 2 upper arm
+    (turns against 1 about the shoulder), 3 forearm (rigid to 2). The upper arm's samples are
+    blended between bones 1 and 2 (smooth skinning, as in artist rigs); every other sample
+    follows one bone. Returns joints (F, 4, 3), parents, surface (F, S, 3), labels (S,),
+    R (F, 4, 3, 3), T (F, 4, 3), rest (S, 3).
+    """
+    rng = np.random.default_rng(3)
+    shoulder, elbow = np.array([0.2, 0.5, 0.0]), np.array([0.5, 0.5, 0.0])
+    torso = rng.uniform([-0.2, -0.5, -0.1], [0.2, 0.5, 0.1], (200, 3))
+    upper = np.c_[rng.uniform(0.2, 0.5, 80), rng.uniform(0.45, 0.55, 80), rng.uniform(-0.05, 0.05, 80)]
+    fore = np.c_[rng.uniform(0.5, 0.8, 80), rng.uniform(0.45, 0.55, 80), rng.uniform(-0.05, 0.05, 80)]
+    rest = np.concatenate([torso, upper, fore])
+    labels = np.repeat([1, 2, 3], [200, 80, 80])
+    t = np.linspace(0.0, 1.0, F)
+    R = np.zeros((F, 4, 3, 3))
+    T = np.zeros((F, 4, 3))
+    for f in range(F):
+        Rw = rodrigues(np.array([0.0, 1.0, 0.0]), 0.4 * t[f])  # the root turns and walks
+        Tw = np.array([0.3 * t[f], 0.0, 2.0])
+        Ra = rodrigues(np.array([0.0, 0.0, 1.0]), 1.2 * np.sin(3 * t[f]))  # shoulder
+        R[f, 0] = R[f, 1] = Rw
+        T[f, 0] = T[f, 1] = Tw
+        R[f, 2] = R[f, 3] = Rw @ Ra
+        T[f, 2] = T[f, 3] = Rw @ (shoulder - Ra @ shoulder) + Tw
+    # upper-arm samples: weight of bone 2 rises from 0.3 at the shoulder to 1 at the elbow
+    w = np.zeros((len(rest), 4))
+    w[labels == 1, 1] = w[labels == 3, 3] = 1.0
+    a = 0.3 + 0.7 * (upper[:, 0] - 0.2) / 0.3
+    w[labels == 2, 2], w[labels == 2, 1] = a, 1.0 - a
+    surf = np.einsum("mb,fbij,mj->fmi", w, R, rest) + np.einsum("mb,fbi->fmi", w, T)
+    joints = np.stack([np.einsum("fij,j->fi", R[:, b], p) + T[:, b] for b, p in
+                       enumerate([np.zeros(3), np.zeros(3), shoulder, elbow])], axis=1)
+    return joints, np.array([-1, 0, 1, 2]), surf, labels, R, T, rest
+
+
+def test_articulation_from_bone_transforms():
+    """The forearm never turns against the upper arm, but the upper arm's skin blends with the
+    torso: the surface rule (Kabsch of the blended upper-arm samples) sees the forearm swing
+    and scores its joint; the rig's transforms do not. The torso is rigid to the root, which
+    moves in the world without skin: measured against the root bone it is static (the surface
+    rule measures it against the world). Oracle: direct evaluation of the transforms."""
+    joints, parents, surf, labels, R, T, rest = _lbs_chain()
+    kw = dict(surface=surf, surface_labels=labels, names=["root", "torso", "upper", "fore"],
+              skinned=np.array([False, True, True, True]))
+    m_s, _, sw_s = scorable_joints(joints, parents, swing_source="surface", **kw)
+    m_b, reasons, sw_b = scorable_joints(joints, parents, bone_rotations=R, bone_translations=T,
+                                         rest_surface=rest, **kw)
+    # "auto" picks the transforms when they are given
+    assert np.array_equal(m_b, scorable_joints(joints, parents, bone_rotations=R,
+                                               bone_translations=T, rest_surface=rest,
+                                               swing_source="bones", **kw)[0])
+    assert m_s.tolist() == [False, True, True, True]  # the flaw of the surface rule
+    assert m_b.tolist() == [False, False, True, False]
+    assert sw_b[3] < 1e-12 and sw_b[1] < 1e-12 and reasons[3].startswith("static")
+    # the upper arm: its samples turned back through the torso's motion (rigid root + torso)
+    q = rest[labels == 2]
+    x = np.einsum("fij,mj->fmi", R[:, 2], q) + T[:, 2, None]
+    back = np.stack([(x[f] - T[f, 1]) @ R[f, 1] for f in range(len(x))])
+    expect = max(np.sqrt(((back[f] - back[0]) ** 2).sum(1).mean()) for f in range(len(x)))
+    assert sw_b[2] == pytest.approx(expect, rel=1e-12)
+    assert expect > 0.05
+
+
+def test_articulation_through_an_unskinned_bone():
+    """A skinned child rigid to an unskinned bone that turns against a skinned grandparent
+    articulates (against the grandparent)."""
+    joints, parents, surf, labels, R, T, rest = _lbs_chain()
+    # bone 2 loses its skin: its samples go to bone 3, which is rigid to 2
+    labels = np.where(labels == 2, 3, labels)
+    kw = dict(surface=surf, surface_labels=labels, skinned=np.array([False, True, False, True]))
+    mask, _, sw = scorable_joints(joints, parents, bone_rotations=R, bone_translations=T,
+                                  rest_surface=rest, **kw)
+    assert mask.tolist() == [False, False, False, True] and sw[3] > 0.05
+
+
+def test_swing_source_errors(tmp_path):
+    joints, parents, surf, labels, R, T, rest = _lbs_chain()
+    with pytest.raises(ValueError, match="swing_source"):
+        scorable_joints(joints, parents, surface=surf, surface_labels=labels,
+                        swing_source="skin")
+    with pytest.raises(InputError, match="bone_rotations"):
+        scorable_joints(joints, parents, surface=surf, surface_labels=labels,
+                        swing_source="bones")
+    with pytest.raises(InputError, match=r"gt\.npz.*do not match 12 frames"):
+        evaluate(joints, joints, parents, surface=surf, surface_labels=labels,
+                 bone_rotations=R[:5], bone_translations=T, rest_surface=rest,
+                 gt_source=tmp_path / "gt.npz")
+
+
 def test_static_figure_joints_are_not_scored():
     seq = synthesize("arm", n_frames=8, amplitude=0.0, noise=NoiseConfig.clean(),
                      camera=Camera.kinect(320))
@@ -213,6 +305,10 @@ def test_files_and_cli(tmp_path, capsys):
     assert main(["evaluate", str(tmp_path / "skeleton.json"), str(out), "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert doc["recall"] == 1.0 and len(doc["joints"]) == J
+    assert doc["swing_source"] == "bones"  # gt.npz carries the bone transforms
+    assert main(["evaluate", str(tmp_path / "skeleton.json"), str(out), "--json",
+                 "--swing-source", "surface"]) == 0
+    assert json.loads(capsys.readouterr().out)["swing_source"] == "surface"
     assert main(["evaluate", str(tmp_path / "skeleton.json"), str(out)]) == 0
     assert "normalised error" in capsys.readouterr().out
     assert main(["evaluate", str(tmp_path / "s2.json"), str(out)]) == 1

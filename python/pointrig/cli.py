@@ -238,6 +238,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         threshold=args.threshold,
         threshold_fraction=(args.threshold_fraction if args.threshold_fraction is not None
                             else THRESHOLD_FRACTION),
+        swing_source=args.swing_source,
     )
     if args.json:
         print(json.dumps(rep.to_dict(), indent=1))
@@ -339,6 +340,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--start", type=int, default=0, help="first GT frame used for extraction")
     p.add_argument("--stop", type=int, default=None, help="stop before this GT frame")
     p.add_argument("--stride", type=int, default=1, help="GT frame stride used for extraction")
+    p.add_argument("--swing-source", choices=("auto", "bones", "surface"), default="auto",
+                   help="motions of the 'visibly articulates' test: the rig's bone transforms "
+                        "(auto: when gt.npz has them) or Kabsch fits of the surface parts "
+                        "(the rule before session 21)")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=cmd_evaluate)
 

@@ -11,12 +11,23 @@ when no surface is given.
 1. *carries skin*: the joint's bone dominates some skin (``skinned`` in ``gt.npz``; joints
    without skin, such as IK targets or sockets in glTF rigs, are not scored);
 2. *visibly articulates* (non-root joints): the joint's part swings relative to its parent
-   part by more than ``swing_fraction * s`` (default 1.5 %): the parent part's surface samples
-   give a rigid motion per frame (Kabsch); the child part's samples are mapped back to frame
-   0 with the inverse of that motion, and the swing is the largest RMS displacement over the
-   frames. The parent part is that of the nearest ancestor carrying at least 3 samples (the
-   world frame if none). Root joints (parent -1) pass this test. Without surface samples this
-   test is skipped;
+   part by more than ``swing_fraction * s`` (default 1.5 %): the child part's samples are
+   mapped back to frame 0 through the parent's motion, and the swing is the largest RMS
+   displacement over the frames. The parent is the nearest ancestor carrying at least 3
+   samples. Two ways to get the motions (``swing_source``):
+
+   * ``"bones"`` (default whenever the ground truth has its bone transforms, as every
+     ``pointrig synth`` gt.npz does): the rig's own transforms ``T_frame_rest`` of the child
+     and the parent bone applied to the child part's rest samples; with no skinned ancestor,
+     the top bone of the chain (a rig's root moves in the world without skin). This is the
+     articulation of the rig itself;
+   * ``"surface"`` (before session 21; the fallback without bone transforms): the parent part's
+     surface samples give a rigid motion per frame (Kabsch), the world frame if no ancestor
+     carries samples. On smoothly skinned rigs this measures skin blending, not articulation:
+     it scores joints that never turn against their parent (girl's Neck, 0.0 deg; a glTF arm
+     bone rigid to its parent), which no method can find from motion;
+
+   Root joints (parent -1) pass this test. Without surface samples it is skipped;
 3. *not a near-duplicate*: if two joints still scorable stay within ``duplicate_fraction * s``
    (default 2 %) of each other on average over the frames, only the one nearer the root (then
    the lower index) is scored.
@@ -46,7 +57,7 @@ from .errors import InputError
 
 __all__ = ["EvalReport", "JointRow", "evaluate", "evaluate_files", "scorable_joints",
            "subject_size", "load_prediction", "SWING_FRACTION", "DUPLICATE_FRACTION",
-           "THRESHOLD_FRACTION"]
+           "THRESHOLD_FRACTION", "SWING_SOURCES"]
 
 #: Matching threshold as a fraction of the subject size.
 THRESHOLD_FRACTION = 0.08
@@ -89,6 +100,8 @@ class EvalReport:
     scorable: np.ndarray
     rows: list[JointRow] = field(default_factory=list)
     pred_names: list[str] = field(default_factory=list)
+    #: how the articulation test got its motions: "bones", "surface" or "" (no surface)
+    swing_source: str = ""
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict (NaN -> None)."""
@@ -100,7 +113,7 @@ class EvalReport:
 
         d = {k: clean(getattr(self, k)) for k in (
             "recall", "precision", "raw_error", "normalized_error", "threshold", "subject_size",
-            "n_pred", "n_gt", "n_scorable", "n_matched", "n_frames")}
+            "n_pred", "n_gt", "n_scorable", "n_matched", "n_frames", "swing_source")}
         d["joints"] = [{k: clean(v) for k, v in dataclasses.asdict(r).items()} for r in self.rows]
         for j in d["joints"]:
             m = j["matched"]
@@ -113,7 +126,8 @@ class EvalReport:
         lines = [
             f"frames {self.n_frames}   predicted joints {self.n_pred}   GT joints {self.n_gt} "
             f"({self.n_scorable} scorable)",
-            f"subject size {self.subject_size:.3f} m   match threshold {self.threshold:.3f} m",
+            f"subject size {self.subject_size:.3f} m   match threshold {self.threshold:.3f} m"
+            + (f"   articulation from {self.swing_source}" if self.swing_source else ""),
             f"recall     {self.recall:.3f}  ({self.n_matched}/{self.n_scorable})",
             f"precision  {self.precision:.3f}  ({self.n_matched}/{self.n_pred})",
             f"raw error         {self.raw_error * cm:7.2f} cm",
@@ -201,6 +215,32 @@ def _swings(parents: np.ndarray, surface: np.ndarray, labels: np.ndarray) -> np.
     return out
 
 
+def _swings_from_bones(parents: np.ndarray, rotations: np.ndarray, translations: np.ndarray,
+                       rest_surface: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """Swing of each joint's part against its parent from the rig's bone transforms.
+
+    ``rotations (F, J, 3, 3)``, ``translations (F, J, 3)``: ``T_frame_rest`` of each bone;
+    ``rest_surface (S, 3)`` and ``labels (S,)``: the samples in the rest pose and their
+    dominant joint. Returns ``(J,)`` metres, ``nan`` for roots and joints without samples.
+    """
+    J = len(parents)
+    counts = np.bincount(labels[labels >= 0], minlength=J)[:J]
+    out = np.full(J, np.nan)
+    for j in range(J):
+        if parents[j] < 0 or counts[j] < 1:
+            continue
+        a = top = int(parents[j])
+        while a >= 0 and counts[a] < MIN_PART_SAMPLES:
+            top = a
+            a = int(parents[a])
+        ref = a if a >= 0 else top  # no skinned ancestor: the chain's top bone
+        q = rest_surface[labels == j]  # (m, 3)
+        x = np.einsum("fij,mj->fmi", rotations[:, j], q) + translations[:, j, None]
+        back = np.einsum("fji,fmj->fmi", rotations[:, ref], x - translations[:, ref, None])
+        out[j] = float(np.sqrt(((back - back[0]) ** 2).sum(axis=2).mean(axis=1)).max())
+    return out
+
+
 def _depths(parents: np.ndarray) -> np.ndarray:
     d = np.zeros(len(parents), dtype=np.int64)
     for j in range(len(parents)):
@@ -212,6 +252,39 @@ def _depths(parents: np.ndarray) -> np.ndarray:
     return d
 
 
+SWING_SOURCES = ("auto", "bones", "surface")
+
+
+def _swing_source(source: str, rotations: Any, translations: Any, rest_surface: Any) -> str:
+    """Resolve ``swing_source`` (``"auto"`` -> ``"bones"`` if the transforms are given)."""
+    if source not in SWING_SOURCES:
+        raise ValueError(f"swing_source must be one of {SWING_SOURCES}, got {source!r}")
+    have = rotations is not None and translations is not None and rest_surface is not None
+    if source == "bones" and not have:
+        raise InputError("swing_source 'bones' needs the ground truth's bone_rotations, "
+                         "bone_translations and rest_surface")
+    if source == "auto":
+        return "bones" if have else "surface"
+    return source
+
+
+def _check_bones(rotations: Any, translations: Any, rest_surface: Any, F: int, J: int, S: int,
+                 path: str | Path | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The ground truth's bone transforms and rest samples as float arrays of the shapes
+    ``(F, J, 3, 3)``, ``(F, J, 3)``, ``(S, 3)``, or an InputError naming ``path``."""
+    Rb = np.asarray(rotations, dtype=np.float64)
+    Tb = np.asarray(translations, dtype=np.float64)
+    q = np.asarray(rest_surface, dtype=np.float64)
+    if Rb.shape != (F, J, 3, 3) or Tb.shape != (F, J, 3) or q.shape != (S, 3):
+        raise InputError(f"ground-truth bone_rotations {Rb.shape}, bone_translations "
+                         f"{Tb.shape} and rest_surface {q.shape} do not match {F} frames, "
+                         f"{J} joints and {S} surface samples", path)
+    for name, a in (("bone_rotations", Rb), ("bone_translations", Tb), ("rest_surface", q)):
+        if not np.isfinite(a).all():
+            raise InputError(f"ground-truth {name} holds NaN/inf", path)
+    return Rb, Tb, q
+
+
 def scorable_joints(gt_joints: np.ndarray, gt_parents: np.ndarray, *,
                     surface: np.ndarray | None = None,
                     surface_labels: np.ndarray | None = None,
@@ -220,6 +293,10 @@ def scorable_joints(gt_joints: np.ndarray, gt_parents: np.ndarray, *,
                     size: float | None = None,
                     swing_fraction: float = SWING_FRACTION,
                     duplicate_fraction: float = DUPLICATE_FRACTION,
+                    bone_rotations: np.ndarray | None = None,
+                    bone_translations: np.ndarray | None = None,
+                    rest_surface: np.ndarray | None = None,
+                    swing_source: str = "auto",
                     ) -> tuple[np.ndarray, list[str], np.ndarray]:
     """Which ground-truth joints are scored (rules in the module docstring).
 
@@ -239,6 +316,12 @@ def scorable_joints(gt_joints: np.ndarray, gt_parents: np.ndarray, *,
         Joint names for the reasons (default ``j<i>``).
     size
         Subject size (default :func:`subject_size`).
+    bone_rotations, bone_translations, rest_surface
+        Optional ground-truth bone transforms ``T_frame_rest`` ``(F, J, 3, 3)``, ``(F, J, 3)``
+        (metres) and the samples in the rest pose ``(S, 3)``, for the ``"bones"`` swing.
+    swing_source
+        ``"auto"`` (``"bones"`` when the transforms and rest samples are given, else
+        ``"surface"``), ``"bones"`` or ``"surface"`` (module docstring, rule 2).
 
     Returns
     -------
@@ -266,9 +349,16 @@ def scorable_joints(gt_joints: np.ndarray, gt_parents: np.ndarray, *,
     mask = skinned.copy()
     reasons = ["ok" if k else "no skin" for k in skinned]
     swing = np.full(J, np.nan)
-    if have_surface:
+    source = _swing_source(swing_source, bone_rotations, bone_translations, rest_surface)
+    if have_surface and source == "bones":
+        lab = np.asarray(surface_labels, dtype=np.int64)
+        Rb, Tb, q = _check_bones(bone_rotations, bone_translations, rest_surface, g.shape[0], J,
+                                 len(lab), None)
+        swing = _swings_from_bones(parents, Rb, Tb, q, lab)
+    elif have_surface:
         swing = _swings(parents, np.asarray(surface, dtype=np.float64),
                         np.asarray(surface_labels, dtype=np.int64))
+    if have_surface:
         for j in range(J):
             if mask[j] and parents[j] >= 0 and not swing[j] > swing_fraction * s:
                 mask[j] = False
@@ -296,7 +386,11 @@ def evaluate(pred_joints: np.ndarray, gt_joints: np.ndarray, gt_parents: np.ndar
              swing_fraction: float = SWING_FRACTION,
              duplicate_fraction: float = DUPLICATE_FRACTION,
              pred_source: str | Path | None = None,
-             gt_source: str | Path | None = None) -> EvalReport:
+             gt_source: str | Path | None = None,
+             bone_rotations: np.ndarray | None = None,
+             bone_translations: np.ndarray | None = None,
+             rest_surface: np.ndarray | None = None,
+             swing_source: str = "auto") -> EvalReport:
     """Score predicted joint trajectories against ground truth.
 
     Parameters
@@ -314,6 +408,9 @@ def evaluate(pred_joints: np.ndarray, gt_joints: np.ndarray, gt_parents: np.ndar
         skinned mask ``(J,)`` for the scorable-joint rules.
     threshold
         Absolute matching threshold in metres (default ``threshold_fraction`` * subject size).
+    bone_rotations, bone_translations, rest_surface, swing_source
+        Optional ground-truth bone transforms and rest samples for the articulation test,
+        and which motions it uses (:func:`scorable_joints`).
     pred_source, gt_source
         File names used in error messages.
 
@@ -342,11 +439,17 @@ def evaluate(pred_joints: np.ndarray, gt_joints: np.ndarray, gt_parents: np.ndar
         raise InputError(f"ground truth parents must have {J} entries, got {parents.shape}",
                          gt_source)
     have_surface = surface is not None and surface_labels is not None
+    source = _swing_source(swing_source, bone_rotations, bone_translations, rest_surface)
+    if have_surface and source == "bones":  # shape errors name the ground-truth file
+        _check_bones(bone_rotations, bone_translations, rest_surface, F, J,
+                     len(np.asarray(surface_labels).reshape(-1)), gt_source)
     s = subject_size(g, surface if have_surface else None, skinned)
     mask, reasons, swing = scorable_joints(
         g, parents, surface=surface, surface_labels=surface_labels, skinned=skinned,
         names=gt_names, size=s, swing_fraction=swing_fraction,
-        duplicate_fraction=duplicate_fraction)
+        duplicate_fraction=duplicate_fraction, bone_rotations=bone_rotations,
+        bone_translations=bone_translations, rest_surface=rest_surface,
+        swing_source=swing_source)
     tau = float(threshold) if threshold is not None else threshold_fraction * s
     cols = np.nonzero(mask)[0]
     dist = np.linalg.norm(p[:, :, None, :] - g[:, None, cols, :], axis=3)  # (F, P, Js)
@@ -376,6 +479,7 @@ def evaluate(pred_joints: np.ndarray, gt_joints: np.ndarray, gt_parents: np.ndar
         normalized_error=float(np.nanmean(norm)) if n_match else float("nan"),
         threshold=tau, subject_size=s, n_pred=P, n_gt=J, n_scorable=n_sc, n_matched=n_match,
         n_frames=F, scorable=mask, rows=rows, pred_names=pred_names,
+        swing_source=source if have_surface else "",
     )
 
 
@@ -433,7 +537,11 @@ def evaluate_files(pred_path: str | Path, gt_path: str | Path, *, start: int = 0
     gt = load_gt(gt_path)
     sl = slice(start, stop, stride)
     surf = gt.get("surface")
+    Rb, Tb = gt.get("bone_rotations"), gt.get("bone_translations")
     return evaluate(pred, gt["joints"][sl], gt["parents"], gt_names=gt["names"],
                     pred_names=pred_names, surface=None if surf is None else surf[sl],
                     surface_labels=gt.get("surface_labels"), skinned=gt.get("skinned"),
-                    pred_source=Path(pred_path), gt_source=gt["path"], **kwargs)
+                    pred_source=Path(pred_path), gt_source=gt["path"],
+                    bone_rotations=None if Rb is None else Rb[sl],
+                    bone_translations=None if Tb is None else Tb[sl],
+                    rest_surface=gt.get("rest_surface"), **kwargs)

@@ -130,6 +130,15 @@ class SynthSequence:
         return PointSequence(list(self.frames), f"synth:{self.source}",
                              [f"frame_{t:04d}" for t in range(self.n_frames)], "memory")
 
+    def eval_kwargs(self) -> dict[str, Any]:
+        """The ground truth as keyword arguments of :func:`pointrig.evaluate.evaluate` (names,
+        skin, surface samples, bone transforms and rest samples), as ``pointrig evaluate``
+        reads them from ``gt.npz``."""
+        return {"gt_names": list(self.joint_names), "skinned": self.skinned,
+                "surface": self.surface, "surface_labels": self.surface_labels,
+                "bone_rotations": self.bone_rotations,
+                "bone_translations": self.bone_translations, "rest_surface": self.rest_surface}
+
     def gt_arrays(self) -> dict[str, Any]:
         """The arrays written to ``gt.npz``."""
         cam = self.camera
