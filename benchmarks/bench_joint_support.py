@@ -124,7 +124,7 @@ def main(argv: list[str]) -> int:
     stats: dict[str, list[list[float]]] = {"oracle": [[], []], "data": [[], []]}
     print(f"{'sequence':<16} {'prec':>5} {'joints':>6} {'AUC oracle':>10} {'AUC data':>9}")
     for name in names:
-        d = _load(base.get(name, name), a.frames, a.cache)
+        d = _load(base.get(name, name), a.frames, a.cache, {})
         if not d:
             print(f"{name:<16} (missing)")
             continue
