@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from pointrig.cli import main
-from pointrig.errors import InputError
+from pointrig.errors import ConfigError, InputError
 from pointrig.evaluate import (
     evaluate,
     evaluate_files,
@@ -168,8 +168,8 @@ def _lbs_chain(F: int = 12):
     rng = np.random.default_rng(3)
     shoulder, elbow = np.array([0.2, 0.5, 0.0]), np.array([0.5, 0.5, 0.0])
     torso = rng.uniform([-0.2, -0.5, -0.1], [0.2, 0.5, 0.1], (200, 3))
-    upper = np.c_[rng.uniform(0.2, 0.5, 80), rng.uniform(0.45, 0.55, 80), rng.uniform(-0.05, 0.05, 80)]
-    fore = np.c_[rng.uniform(0.5, 0.8, 80), rng.uniform(0.45, 0.55, 80), rng.uniform(-0.05, 0.05, 80)]
+    upper = rng.uniform([0.2, 0.45, -0.05], [0.5, 0.55, 0.05], (80, 3))
+    fore = rng.uniform([0.5, 0.45, -0.05], [0.8, 0.55, 0.05], (80, 3))
     rest = np.concatenate([torso, upper, fore])
     labels = np.repeat([1, 2, 3], [200, 80, 80])
     t = np.linspace(0.0, 1.0, F)
@@ -236,7 +236,7 @@ def test_articulation_through_an_unskinned_bone():
 
 def test_swing_source_errors(tmp_path):
     joints, parents, surf, labels, R, T, rest = _lbs_chain()
-    with pytest.raises(ValueError, match="swing_source"):
+    with pytest.raises(ConfigError, match="swing_source"):
         scorable_joints(joints, parents, surface=surf, surface_labels=labels,
                         swing_source="skin")
     with pytest.raises(InputError, match="bone_rotations"):

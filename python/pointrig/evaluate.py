@@ -53,7 +53,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import InputError
+from .errors import ConfigError, InputError
 
 __all__ = ["EvalReport", "JointRow", "evaluate", "evaluate_files", "scorable_joints",
            "subject_size", "load_prediction", "SWING_FRACTION", "DUPLICATE_FRACTION",
@@ -258,7 +258,7 @@ SWING_SOURCES = ("auto", "bones", "surface")
 def _swing_source(source: str, rotations: Any, translations: Any, rest_surface: Any) -> str:
     """Resolve ``swing_source`` (``"auto"`` -> ``"bones"`` if the transforms are given)."""
     if source not in SWING_SOURCES:
-        raise ValueError(f"swing_source must be one of {SWING_SOURCES}, got {source!r}")
+        raise ConfigError(f"swing_source must be one of {SWING_SOURCES}, got {source!r}")
     have = rotations is not None and translations is not None and rest_surface is not None
     if source == "bones" and not have:
         raise InputError("swing_source 'bones' needs the ground truth's bone_rotations, "
