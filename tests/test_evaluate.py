@@ -222,6 +222,19 @@ def test_articulation_from_bone_transforms():
     assert expect > 0.05
 
 
+def test_articulation_from_scaled_bone_matrices():
+    """Bone matrices that carry scale (squash and stretch): a child rigid to its scaled parent
+    does not swing (the parent's motion is inverted exactly, not transposed)."""
+    joints, parents, surf, labels, R, T, rest = _lbs_chain()
+    scale = 1.0 + 0.2 * np.sin(np.linspace(0.0, 3.0, len(R)))
+    R = R.copy()
+    R[:, 2:] *= scale[:, None, None, None]  # upper arm and forearm: the same scaled matrix
+    _, _, sw = scorable_joints(joints, parents, surface=surf, surface_labels=labels,
+                               bone_rotations=R, bone_translations=T, rest_surface=rest,
+                               skinned=np.array([False, True, True, True]))
+    assert sw[3] < 1e-12
+
+
 def test_articulation_through_an_unskinned_bone():
     """A skinned child rigid to an unskinned bone that turns against a skinned grandparent
     articulates (against the grandparent)."""

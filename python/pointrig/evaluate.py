@@ -219,7 +219,8 @@ def _swings_from_bones(parents: np.ndarray, rotations: np.ndarray, translations:
                        rest_surface: np.ndarray, labels: np.ndarray) -> np.ndarray:
     """Swing of each joint's part against its parent from the rig's bone transforms.
 
-    ``rotations (F, J, 3, 3)``, ``translations (F, J, 3)``: ``T_frame_rest`` of each bone;
+    ``rotations (F, J, 3, 3)``, ``translations (F, J, 3)``: ``T_frame_rest`` of each bone (the
+    3x3 part may carry scale);
     ``rest_surface (S, 3)`` and ``labels (S,)``: the samples in the rest pose and their
     dominant joint. Returns ``(J,)`` metres, ``nan`` for roots and joints without samples.
     """
@@ -236,7 +237,9 @@ def _swings_from_bones(parents: np.ndarray, rotations: np.ndarray, translations:
         ref = a if a >= 0 else top  # no skinned ancestor: the chain's top bone
         q = rest_surface[labels == j]  # (m, 3)
         x = np.einsum("fij,mj->fmi", rotations[:, j], q) + translations[:, j, None]
-        back = np.einsum("fji,fmj->fmi", rotations[:, ref], x - translations[:, ref, None])
+        # the exact inverse, not the transpose: a rig's bone matrices may carry scale
+        back = np.einsum("fij,fmj->fmi", np.linalg.inv(rotations[:, ref]),
+                         x - translations[:, ref, None])
         out[j] = float(np.sqrt(((back - back[0]) ** 2).sum(axis=2).mean(axis=1)).max())
     return out
 
