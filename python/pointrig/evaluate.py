@@ -194,16 +194,34 @@ def _kabsch_batch(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndar
     return R, T
 
 
-def _swings(parents: np.ndarray, surface: np.ndarray, labels: np.ndarray) -> np.ndarray:
+def _swing_references(parents: np.ndarray, labels: np.ndarray) -> list[tuple[int, int, int]]:
+    """``(j, a, top)`` for every non-root joint ``j`` with samples: ``a`` is its nearest
+    ancestor carrying at least ``MIN_PART_SAMPLES`` samples (``-1`` if none), ``top`` the last
+    ancestor passed on the way (the chain's top bone when ``a`` is ``-1``)."""
     J = len(parents)
     counts = np.bincount(labels[labels >= 0], minlength=J)[:J]
-    out = np.full(J, np.nan)
+    out = []
     for j in range(J):
         if parents[j] < 0 or counts[j] < 1:
             continue
-        a = int(parents[j])
+        a = top = int(parents[j])
         while a >= 0 and counts[a] < MIN_PART_SAMPLES:
+            top = a
             a = int(parents[a])
+        out.append((j, a, top))
+    return out
+
+
+def _max_rms_drift(back: np.ndarray, start: np.ndarray) -> float:
+    """Largest over frames of the RMS distance of ``back (F, m, 3)`` from ``start (m, 3)``."""
+    return float(np.sqrt(((back - start) ** 2).sum(axis=2).mean(axis=1)).max())
+
+
+def _swings(parents: np.ndarray, surface: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """Swing of each joint's part against a Kabsch fit of its parent part's samples
+    (``surface (F, S, 3)``), or against the world when no ancestor carries samples."""
+    out = np.full(len(parents), np.nan)
+    for j, a, _top in _swing_references(parents, labels):
         child = surface[:, labels == j]  # (F, m, 3)
         if a < 0:
             back = child
@@ -211,7 +229,7 @@ def _swings(parents: np.ndarray, surface: np.ndarray, labels: np.ndarray) -> np.
             par = surface[:, labels == a]
             R, T = _kabsch_batch(par[0], par)
             back = np.einsum("fji,fmj->fmi", R, child - T[:, None])  # R^T (x - T)
-        out[j] = float(np.sqrt(((back - child[0]) ** 2).sum(axis=2).mean(axis=1)).max())
+        out[j] = _max_rms_drift(back, child[0])
     return out
 
 
@@ -220,27 +238,20 @@ def _swings_from_bones(parents: np.ndarray, rotations: np.ndarray, translations:
     """Swing of each joint's part against its parent from the rig's bone transforms.
 
     ``rotations (F, J, 3, 3)``, ``translations (F, J, 3)``: ``T_frame_rest`` of each bone (the
-    3x3 part may carry scale);
-    ``rest_surface (S, 3)`` and ``labels (S,)``: the samples in the rest pose and their
-    dominant joint. Returns ``(J,)`` metres, ``nan`` for roots and joints without samples.
+    3x3 part may carry scale); ``rest_surface (S, 3)`` and ``labels (S,)``: the samples in the
+    rest pose and their dominant joint. The reference is the nearest ancestor carrying
+    samples, else the chain's top bone. Returns ``(J,)`` metres, ``nan`` for roots and joints
+    without samples.
     """
-    J = len(parents)
-    counts = np.bincount(labels[labels >= 0], minlength=J)[:J]
-    out = np.full(J, np.nan)
-    for j in range(J):
-        if parents[j] < 0 or counts[j] < 1:
-            continue
-        a = top = int(parents[j])
-        while a >= 0 and counts[a] < MIN_PART_SAMPLES:
-            top = a
-            a = int(parents[a])
-        ref = a if a >= 0 else top  # no skinned ancestor: the chain's top bone
+    out = np.full(len(parents), np.nan)
+    for j, a, top in _swing_references(parents, labels):
+        ref = a if a >= 0 else top
         q = rest_surface[labels == j]  # (m, 3)
         x = np.einsum("fij,mj->fmi", rotations[:, j], q) + translations[:, j, None]
         # the exact inverse, not the transpose: a rig's bone matrices may carry scale
         back = np.einsum("fij,fmj->fmi", np.linalg.inv(rotations[:, ref]),
                          x - translations[:, ref, None])
-        out[j] = float(np.sqrt(((back - back[0]) ** 2).sum(axis=2).mean(axis=1)).max())
+        out[j] = _max_rms_drift(back, back[0])
     return out
 
 
