@@ -311,6 +311,7 @@ def scorable_joints(gt_joints: np.ndarray, gt_parents: np.ndarray, *,
                     bone_translations: np.ndarray | None = None,
                     rest_surface: np.ndarray | None = None,
                     swing_source: str = "auto",
+                    gt_source: str | Path | None = None,
                     ) -> tuple[np.ndarray, list[str], np.ndarray]:
     """Which ground-truth joints are scored (rules in the module docstring).
 
@@ -336,6 +337,8 @@ def scorable_joints(gt_joints: np.ndarray, gt_parents: np.ndarray, *,
     swing_source
         ``"auto"`` (``"bones"`` when the transforms and rest samples are given, else
         ``"surface"``), ``"bones"`` or ``"surface"`` (module docstring, rule 2).
+    gt_source
+        The ground-truth file, named in error messages.
 
     Returns
     -------
@@ -367,7 +370,7 @@ def scorable_joints(gt_joints: np.ndarray, gt_parents: np.ndarray, *,
     if have_surface and source == "bones":
         lab = np.asarray(surface_labels, dtype=np.int64)
         Rb, Tb, q = _check_bones(bone_rotations, bone_translations, rest_surface, g.shape[0], J,
-                                 len(lab), None)
+                                 len(lab), gt_source)
         swing = _swings_from_bones(parents, Rb, Tb, q, lab)
     elif have_surface:
         swing = _swings(parents, np.asarray(surface, dtype=np.float64),
@@ -453,17 +456,13 @@ def evaluate(pred_joints: np.ndarray, gt_joints: np.ndarray, gt_parents: np.ndar
         raise InputError(f"ground truth parents must have {J} entries, got {parents.shape}",
                          gt_source)
     have_surface = surface is not None and surface_labels is not None
-    source = _swing_source(swing_source, bone_rotations, bone_translations, rest_surface)
-    if have_surface and source == "bones":  # shape errors name the ground-truth file
-        _check_bones(bone_rotations, bone_translations, rest_surface, F, J,
-                     len(np.asarray(surface_labels).reshape(-1)), gt_source)
     s = subject_size(g, surface if have_surface else None, skinned)
     mask, reasons, swing = scorable_joints(
         g, parents, surface=surface, surface_labels=surface_labels, skinned=skinned,
         names=gt_names, size=s, swing_fraction=swing_fraction,
         duplicate_fraction=duplicate_fraction, bone_rotations=bone_rotations,
         bone_translations=bone_translations, rest_surface=rest_surface,
-        swing_source=swing_source)
+        swing_source=swing_source, gt_source=gt_source)
     tau = float(threshold) if threshold is not None else threshold_fraction * s
     cols = np.nonzero(mask)[0]
     dist = np.linalg.norm(p[:, :, None, :] - g[:, None, cols, :], axis=3)  # (F, P, Js)
@@ -493,7 +492,8 @@ def evaluate(pred_joints: np.ndarray, gt_joints: np.ndarray, gt_parents: np.ndar
         normalized_error=float(np.nanmean(norm)) if n_match else float("nan"),
         threshold=tau, subject_size=s, n_pred=P, n_gt=J, n_scorable=n_sc, n_matched=n_match,
         n_frames=F, scorable=mask, rows=rows, pred_names=pred_names,
-        swing_source=source if have_surface else "",
+        swing_source=_swing_source(swing_source, bone_rotations, bone_translations,
+                                   rest_surface) if have_surface else "",
     )
 
 
