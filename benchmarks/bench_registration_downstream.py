@@ -34,17 +34,19 @@ FIGURES = ["human", "upper_body", "arm", "hand", "quadruped", "snake"] + [
 ]
 
 
-def score_joints(joint_positions: np.ndarray, syn):
-    """``EvalReport`` of predicted joints ``(F, J, 3)`` (metres) against ``syn``'s ground truth."""
-    return evaluate(joint_positions, syn.gt_joints, syn.joint_parents, **syn.eval_kwargs())
+def score_joints(joint_positions: np.ndarray, syn, swing_source: str = "auto"):
+    """``EvalReport`` of predicted joints ``(F, J, 3)`` (metres) against ``syn``'s ground truth
+    (``swing_source``: the articulation test's motions, :func:`pointrig.evaluate.evaluate`)."""
+    return evaluate(joint_positions, syn.gt_joints, syn.joint_parents, **syn.eval_kwargs(),
+                    swing_source=swing_source)
 
 
-def score_step2(rest: np.ndarray, points: np.ndarray, syn, config):
+def score_step2(rest: np.ndarray, points: np.ndarray, syn, config, swing_source: str = "auto"):
     """Step 2 on ``rest (M, 3)`` / ``points (F, M, 3)`` scored against ``syn``'s ground truth;
     returns ``(EvalReport, StructureResult)``."""
     st = extract_structure(rest, points, config)
     sk = build_skeleton(rest, st.bone_parent, st.joints_rest, st.R, st.T, None, st.labels)
-    return score_joints(sk.joint_positions, syn), st
+    return score_joints(sk.joint_positions, syn, swing_source), st
 
 
 def main(argv: list[str]) -> int:

@@ -18,6 +18,8 @@ Variants are JSON overrides of :class:`~pointrig.config.StructureConfig`::
         '{}' '{"band_ratio": 0.5}'
 
 ``--wide`` adds 16 sequences (:data:`WIDE`: other seeds, glTF clips, start times, yaw, a walk).
+``--swing-source surface`` scores with the articulation test before session 21 (Kabsch fits
+of the surface parts instead of the rig's bone transforms).
 ``--registration JSON`` registers with :class:`~pointrig.config.RegistrationConfig` overrides
 (a cache holds one registration variant, so give each its own ``--cache``); each sequence's
 line ends with the mean correspondence error of the registration (cm, against the exact
@@ -117,6 +119,9 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--wide", action="store_true", help="also the 16 sequences of WIDE")
     ap.add_argument("--registration", default="{}", help="RegistrationConfig overrides (JSON) "
                     "for the registered mode; a cache holds one registration variant")
+    ap.add_argument("--swing-source", default="auto", choices=("auto", "bones", "surface"),
+                    help="the scorer's articulation test: the rig's bone transforms (auto) "
+                    "or Kabsch fits of the surface parts (the rule before session 21)")
     a = ap.parse_args(argv)
     reg_over = json.loads(a.registration)
     variants = [json.loads(v) for v in a.variants]
@@ -142,7 +147,7 @@ def main(argv: list[str]) -> int:
                 # the exact samples cover both sides of the surface: not one depth view
                 cfg = dataclasses.replace(StructureConfig(), **{
                     **({"single_view": "no"} if mode == "exact" else {}), **v})
-                r, st = score_step2(q, np.ascontiguousarray(y), syn, cfg)
+                r, st = score_step2(q, np.ascontiguousarray(y), syn, cfg, a.swing_source)
                 rows.setdefault((json.dumps(v), mode), []).append(
                     (r.recall, r.precision, 100 * r.normalized_error,
                      st.n_bones / max(r.n_scorable, 1), 100 * r.raw_error))
@@ -151,7 +156,7 @@ def main(argv: list[str]) -> int:
                     jr = learn_joints(frames, q, y, st, PipelineConfig().joints)
                     sk = build_skeleton(q, st.bone_parent, jr.joints_rest, jr.R, jr.T,
                                         jr.weights, None)
-                    r3 = score_joints(sk.joint_positions, syn)
+                    r3 = score_joints(sk.joint_positions, syn, a.swing_source)
                     rows.setdefault((json.dumps(v), "reg+3"), []).append(
                         (r3.recall, r3.precision, 100 * r3.normalized_error,
                          st.n_bones / max(r3.n_scorable, 1), 100 * r3.raw_error))
