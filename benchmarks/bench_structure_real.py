@@ -47,6 +47,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_registration_downstream import FIGURES, score_joints, score_step2  # noqa: E402
 
 from pointrig.config import PipelineConfig, StructureConfig  # noqa: E402
+from pointrig.evaluate import SWING_SOURCES  # noqa: E402
 from pointrig.joints import learn_joints  # noqa: E402
 from pointrig.pipeline import build_skeleton  # noqa: E402
 from pointrig.registration import register_sequence  # noqa: E402
@@ -119,7 +120,7 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--wide", action="store_true", help="also the 16 sequences of WIDE")
     ap.add_argument("--registration", default="{}", help="RegistrationConfig overrides (JSON) "
                     "for the registered mode; a cache holds one registration variant")
-    ap.add_argument("--swing-source", default="auto", choices=("auto", "bones", "surface"),
+    ap.add_argument("--swing-source", default="auto", choices=SWING_SOURCES,
                     help="the scorer's articulation test: the rig's bone transforms (auto) "
                     "or Kabsch fits of the surface parts (the rule before session 21)")
     a = ap.parse_args(argv)

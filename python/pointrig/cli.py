@@ -260,6 +260,7 @@ def cmd_preview(args: argparse.Namespace) -> int:
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``pointrig`` command."""
     from . import __version__
+    from .evaluate import SWING_SOURCES
 
     parser = argparse.ArgumentParser(
         prog="pointrig",
@@ -340,7 +341,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--start", type=int, default=0, help="first GT frame used for extraction")
     p.add_argument("--stop", type=int, default=None, help="stop before this GT frame")
     p.add_argument("--stride", type=int, default=1, help="GT frame stride used for extraction")
-    p.add_argument("--swing-source", choices=("auto", "bones", "surface"), default="auto",
+    p.add_argument("--swing-source", choices=SWING_SOURCES, default="auto",
                    help="motions of the 'visibly articulates' test: the rig's bone transforms "
                         "(auto: when gt.npz has them) or Kabsch fits of the surface parts "
                         "(the rule before session 21)")

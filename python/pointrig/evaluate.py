@@ -456,13 +456,14 @@ def evaluate(pred_joints: np.ndarray, gt_joints: np.ndarray, gt_parents: np.ndar
         raise InputError(f"ground truth parents must have {J} entries, got {parents.shape}",
                          gt_source)
     have_surface = surface is not None and surface_labels is not None
+    source = _swing_source(swing_source, bone_rotations, bone_translations, rest_surface)
     s = subject_size(g, surface if have_surface else None, skinned)
     mask, reasons, swing = scorable_joints(
         g, parents, surface=surface, surface_labels=surface_labels, skinned=skinned,
         names=gt_names, size=s, swing_fraction=swing_fraction,
         duplicate_fraction=duplicate_fraction, bone_rotations=bone_rotations,
         bone_translations=bone_translations, rest_surface=rest_surface,
-        swing_source=swing_source, gt_source=gt_source)
+        swing_source=source, gt_source=gt_source)
     tau = float(threshold) if threshold is not None else threshold_fraction * s
     cols = np.nonzero(mask)[0]
     dist = np.linalg.norm(p[:, :, None, :] - g[:, None, cols, :], axis=3)  # (F, P, Js)
@@ -492,8 +493,7 @@ def evaluate(pred_joints: np.ndarray, gt_joints: np.ndarray, gt_parents: np.ndar
         normalized_error=float(np.nanmean(norm)) if n_match else float("nan"),
         threshold=tau, subject_size=s, n_pred=P, n_gt=J, n_scorable=n_sc, n_matched=n_match,
         n_frames=F, scorable=mask, rows=rows, pred_names=pred_names,
-        swing_source=_swing_source(swing_source, bone_rotations, bone_translations,
-                                   rest_surface) if have_surface else "",
+        swing_source=source if have_surface else "",
     )
 
 
