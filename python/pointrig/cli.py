@@ -12,6 +12,7 @@ import json
 import logging
 import os
 import sys
+import time
 from collections.abc import Sequence
 
 from .config import PreprocessConfig
@@ -138,9 +139,11 @@ def _read_configured(args: argparse.Namespace, cfg):
     return seq
 
 
-def _summary_line(res, out) -> str:
+def _summary_line(res, out, input_s: float | None = None) -> str:
+    """One line: joints, bones, frames, the time per stage (``input_s``: reading and
+    background removal, seconds, when measured) and the output folder."""
     sk = res.skeleton
-    t = res.timings
+    t = ({"input": input_s} if input_s is not None else {}) | res.timings
     total = sum(t.values())
     parts = [f"{k} {v:.1f}s" for k, v in t.items()]
     reused = " (registration reused)" if res.reused_registration else ""
@@ -153,13 +156,15 @@ def cmd_extract(args: argparse.Namespace) -> int:
     from .pipeline import extract
 
     cfg = _config_from_args(args)
+    t0 = time.perf_counter()
     seq = _read_configured(args, cfg)
+    input_s = time.perf_counter() - t0
     res = extract(seq, cfg, args.output, resume=args.resume, stop_after=args.stop_after,
                   pictures=not args.no_pictures, progress=_ProgressPrinter(args.quiet))
     if res.skeleton is None:
         print(f"registration written to {res.files.get('registration')}")
     else:
-        print(_summary_line(res, args.output))
+        print(_summary_line(res, args.output, input_s))
     return 0
 
 
