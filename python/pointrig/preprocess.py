@@ -413,8 +413,8 @@ def _connected_pieces(points: np.ndarray, radius: float) -> np.ndarray:
     lies within ``sqrt(3) / 4 = 0.43`` radius of its representative, so the effective radius
     is ``radius`` give or take that much at each end. The exact point graph has
     ``O(N (radius / spacing)^2)`` edges: on 150k-point frames of a room scene at ``radius`` =
-    10 point spacings it took 0.7-1.4 s a frame against 0.16 s here, with the same largest
-    piece and within 0.5 % of the number of pieces (docs/registration.md, "Session 22").
+    10 point spacings it took 0.7-1.4 s a frame against 0.13-0.16 s here, with the same
+    largest piece but for 0-4 points (benchmarks/bench_background.py).
     """
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
