@@ -148,3 +148,16 @@ def test_connected_pieces_match_the_exact_point_graph():
     # the first two sheets are one piece, the other two are apart
     first = [got[i * len(sheet)] for i in range(4)]
     assert first[0] == first[1] and len(set(first)) == 3
+
+
+def test_connected_pieces_degenerate_radius_and_huge_extent():
+    """Radius 0 (a frame of duplicated points has a median spacing of 0): only coincident
+    points are one piece. A radius tiny against the extent (more cells than an int64 key can
+    number) still gives the exact graph's pieces."""
+    from pointrig.preprocess import _connected_pieces
+
+    pts = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [0.001, 0.0, 1.0], [5.0, 5.0, 5.0]])
+    lab = _connected_pieces(pts, 0.0)
+    assert lab[0] == lab[1] and len({lab[0], lab[2], lab[3]}) == 3
+    far = np.array([[0.0, 0.0, 0.0], [1e-7, 0.0, 0.0], [3e-7, 0.0, 0.0], [25.0, 25.0, 25.0]])
+    assert _same_partition(_connected_pieces(far, 1.5e-7), _exact_pieces(far, 1.5e-7))

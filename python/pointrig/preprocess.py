@@ -419,11 +419,17 @@ def _connected_pieces(points: np.ndarray, radius: float) -> np.ndarray:
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
+    if not np.isfinite(radius) or radius <= 0.0:  # only coincident points are neighbours
+        return np.unique(points, axis=0, return_inverse=True)[1].ravel()
     cell = PIECE_CELL_FRACTION * radius
     ijk = np.floor((points - points.min(axis=0)) / cell).astype(np.int64)
     dims = ijk.max(axis=0) + 1
-    _, inv = np.unique((ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] + ijk[:, 2],
-                       return_inverse=True)
+    if float(np.prod(dims.astype(np.float64))) < 2.0 ** 62:  # one int64 key per cell
+        _, inv = np.unique((ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] + ijk[:, 2],
+                           return_inverse=True)
+    else:
+        _, inv = np.unique(ijk, axis=0, return_inverse=True)
+    inv = inv.ravel()
     n_cells = int(inv.max()) + 1
     cnt = np.bincount(inv, minlength=n_cells).astype(np.float64)
     reps = np.stack([np.bincount(inv, weights=points[:, k], minlength=n_cells)
