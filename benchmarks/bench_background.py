@@ -19,28 +19,18 @@ import time
 from pathlib import Path
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
-
 from pointrig.preprocess import (
     _band_distance,
     _connected_pieces,
+    connected_pieces_exact,
     find_background_planes,
+    median_spacing,
     remove_background,
 )
 from pointrig.synth import NoiseConfig, synthesize
 
 
 _GREENMAN = Path(__file__).resolve().parents[2] / "shared" / "data" / "models" / "greenman.glb"
-
-
-def exact_pieces(points: np.ndarray, radius: float) -> np.ndarray:
-    """Reference: connected components of the full point graph (the code before session 22)."""
-    n = len(points)
-    pairs = cKDTree(points).query_pairs(radius, output_type="ndarray")
-    g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-    return connected_components(g, directed=False)[1]
 
 
 def main() -> None:
@@ -60,10 +50,9 @@ def main() -> None:
         te, tc, differ, npts, nsub = [], [], 0, [], []
         for pts in seq.frames:
             sub = pts[_band_distance(planes, pts) >= 1.0] if planes else pts
-            spacing = float(np.median(cKDTree(sub).query(sub, k=2)[0][:, 1]))
-            r = 10.0 * spacing
+            r = 10.0 * median_spacing(sub)
             t0 = time.perf_counter()
-            ce = exact_pieces(sub, r)
+            ce = connected_pieces_exact(sub, r)
             te.append(time.perf_counter() - t0)
             t0 = time.perf_counter()
             cc = _connected_pieces(sub, r)

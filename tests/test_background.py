@@ -7,7 +7,11 @@ import pytest
 
 from pointrig.cli import main
 from pointrig.io import write_sequence
-from pointrig.preprocess import find_background_planes, remove_background
+from pointrig.preprocess import (
+    connected_pieces_exact,
+    find_background_planes,
+    remove_background,
+)
 from pointrig.sequence import PointSequence
 from pointrig.synth import Camera, NoiseConfig, synthesize
 
@@ -104,18 +108,6 @@ def test_cli_removes_a_floor_and_rejects_a_bad_option(tmp_path, capsys):
     assert code != 0 and "background" in err and not (tmp_path / "out2" / "skeleton.json").exists()
 
 
-def _exact_pieces(points: np.ndarray, radius: float) -> np.ndarray:
-    """Oracle: connected components of the full point graph (every pair within ``radius``)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree
-
-    n = len(points)
-    pairs = cKDTree(points).query_pairs(radius, output_type="ndarray")
-    g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-    return connected_components(g, directed=False)[1]
-
-
 def _same_partition(a: np.ndarray, b: np.ndarray) -> bool:
     """Two labelings describe the same partition (labels may be permuted)."""
     pairs = np.unique(np.stack([a, b], 1), axis=0)
@@ -143,7 +135,7 @@ def test_connected_pieces_match_the_exact_point_graph():
     from scipy.spatial.transform import Rotation
     pts = pts @ Rotation.from_euler("xyz", [20, 35, 50], degrees=True).as_matrix().T
     got = _connected_pieces(pts, r)
-    want = _exact_pieces(pts, r)
+    want = connected_pieces_exact(pts, r)
     assert _same_partition(got, want)
     # the first two sheets are one piece, the other two are apart
     first = [got[i * len(sheet)] for i in range(4)]
@@ -160,4 +152,4 @@ def test_connected_pieces_degenerate_radius_and_huge_extent():
     lab = _connected_pieces(pts, 0.0)
     assert lab[0] == lab[1] and len({lab[0], lab[2], lab[3]}) == 3
     far = np.array([[0.0, 0.0, 0.0], [1e-7, 0.0, 0.0], [3e-7, 0.0, 0.0], [25.0, 25.0, 25.0]])
-    assert _same_partition(_connected_pieces(far, 1.5e-7), _exact_pieces(far, 1.5e-7))
+    assert _same_partition(_connected_pieces(far, 1.5e-7), connected_pieces_exact(far, 1.5e-7))

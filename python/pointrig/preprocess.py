@@ -440,6 +440,24 @@ def _connected_pieces(points: np.ndarray, radius: float) -> np.ndarray:
     return connected_components(g, directed=False)[1][inv]
 
 
+def connected_pieces_exact(points: np.ndarray, radius: float) -> np.ndarray:
+    """Reference for :func:`_connected_pieces`: connected-piece labels ``(N,)`` of the exact
+    graph of every point pair within ``radius`` metres (the search before session 22; the tests
+    and ``benchmarks/bench_background.py`` compare against it)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n = len(points)
+    pairs = cKDTree(points).query_pairs(radius, output_type="ndarray")
+    g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    return connected_components(g, directed=False)[1]
+
+
+def median_spacing(points: np.ndarray) -> float:
+    """Median nearest-neighbour distance of ``points (N, 3)``, metres."""
+    return float(np.median(cKDTree(points).query(points, k=2)[0][:, 1]))
+
+
 def _keep_near_largest(points: np.ndarray, radius: float, reach: float,
                        weight: np.ndarray | None = None) -> np.ndarray:
     """Mask ``(N,)`` of the points in the largest connected piece (neighbours within about
@@ -500,7 +518,7 @@ def remove_background(seq: "PointSequence", *, seed: int = 0,
         dist = _band_distance(planes, pts)
         sub, dist = pts[dist >= 1.0], dist[dist >= 1.0]
         if len(sub) >= 10:
-            spacing = float(np.median(cKDTree(sub).query(sub, k=2)[0][:, 1]))
+            spacing = median_spacing(sub)
             # within two bands of a plane keep only points next to points clear of it (the
             # subject's feet stay, the plane's scattered noise tail goes)
             margin = dist < 2.0
