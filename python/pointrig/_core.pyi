@@ -130,12 +130,23 @@ def gmm_estep(
     Raises ValueError for sigma2 <= 0, omega outside [0, 1), cutoff <= 0 or bad shapes.
     """
 
+def surface_normals(
+    query: npt.NDArray[np.float64], source: npt.NDArray[np.float64], radius: float,
+    camera: tuple[float, float, float] = (0.0, 0.0, 0.0),
+) -> npt.NDArray[np.float64]:
+    """Unit normals ``(n, 3)`` of the least-squares planes of the ``source (N, 3)`` points within
+    ``radius`` (metres) of each ``query (n, 3)``, flipped to face ``camera``; zero rows with
+    fewer than 3 (or collinear) neighbours."""
+
 class DeformGraph:
     """Embedded deformation graph (Eq. 2) with the M-step solvers of §4.3 and one-frame EM.
 
     ``rest (M, 3)``, ``nodes (J, 3)``, ``pn_idx (M, k) int64`` / ``pn_w (M, k)`` (nodes driving
     each point and weights, normalised per row), ``edges (E, 2) int64`` directed ``(j, k)``,
     ``k in N(n_j)`` for Eq. 6. Node transforms are ``R (J, 3, 3)``, ``T (J, 3)``.
+    ``normals (M, 3)`` (optional) are unit rest-pose surface normals: with them and
+    ``register_frame(..., x_normals=(N, 3), kappa>0)`` each posterior carries the von
+    Mises-Fisher factor ``exp(kappa (n_i . n~_m - 1))``.
     """
 
     n_nodes: int
@@ -149,9 +160,13 @@ class DeformGraph:
         pn_idx: npt.NDArray[np.int64],
         pn_w: npt.NDArray[np.float64],
         edges: npt.NDArray[np.int64],
+        normals: npt.NDArray[np.float64] | None = None,
     ) -> None: ...
     def deform(self, r: npt.NDArray[np.float64], t: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
         """Deformed points ``y'`` (M, 3), Eq. 2."""
+    def deform_normals(self, r: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+        """Deformed unit normals ``normalise(sum_j w R_j n)`` (M, 3); ValueError without
+        rest normals."""
     def energy(
         self, r: npt.NDArray[np.float64], t: npt.NDArray[np.float64],
         r_pre: npt.NDArray[np.float64], t_pre: npt.NDArray[np.float64],
@@ -184,7 +199,8 @@ class DeformGraph:
         max_iter: int, tol: float, cutoff: float | None, single: bool, rigid_iters: int,
         solver: str, damping: float, cg_tol: float, cg_max: int,
         subsample: float = 0.0, motion_tol: float = 0.0, voxel_min: float = 0.0,
-        robust: float = 0.0,
+        robust: float = 0.0, x_normals: npt.NDArray[np.float64] | None = None,
+        kappa: float = 0.0,
     ) -> dict:
         """Algorithm 1 on one frame (see docs/registration.md): dict with ``R``, ``T``,
         ``points (M, 3)``, ``sigma2``, ``iterations``, ``energy``, ``n_p``, ``n_data``,

@@ -24,8 +24,8 @@ use nalgebra::{Matrix3, Matrix6, Rotation3, Vector3, Vector6};
 use rayon::prelude::*;
 
 use crate::core::error::{CoreError, CoreResult};
-use crate::core::gmm::{estep, estep_weighted, Precision};
-use crate::core::neighbors::voxel_downsample;
+use crate::core::gmm::{estep_normals, estep_weighted, Normals, Precision};
+use crate::core::neighbors::voxel_downsample_with;
 use crate::core::rotation::{kabsch, rotation_maximizing_trace};
 
 /// Node transforms `{R_j, T_j}` (Eq. 2).
@@ -88,6 +88,8 @@ pub struct Graph {
     edges_in: Vec<Vec<usize>>,
     /// Per node (block row), the sorted nodes it couples with (itself included).
     cols: Vec<Vec<usize>>,
+    /// Rest-pose unit surface normals (M) or empty (see [`Graph::set_normals`]).
+    normals: Vec<Vector3<f64>>,
 }
 
 fn v3(s: &[f64], i: usize) -> Vector3<f64> {
@@ -208,7 +210,55 @@ impl Graph {
             edges_out,
             edges_in,
             cols,
+            normals: Vec::new(),
         })
+    }
+
+    /// Attach rest-pose surface normals `(M, 3)` flat (unit length, or zero where unknown);
+    /// they ride with the nodes' rotations ([`Graph::deform_normals`]) and let
+    /// [`register_frame`] weight its posteriors by normal agreement.
+    pub fn set_normals(&mut self, normals: &[f64]) -> CoreResult<()> {
+        let m = self.rest.len();
+        if normals.len() != 3 * m {
+            return Err(CoreError::InvalidInput(format!(
+                "normals must have shape ({m}, 3), got {} values",
+                normals.len()
+            )));
+        }
+        if !normals.iter().all(|v| v.is_finite()) {
+            return Err(CoreError::NonFinite("normals".into()));
+        }
+        self.normals = (0..m).map(|i| v3(normals, i)).collect();
+        Ok(())
+    }
+
+    /// Whether rest normals are attached.
+    pub fn has_normals(&self) -> bool {
+        !self.normals.is_empty()
+    }
+
+    /// Deformed unit normals `normalise(sum_j w_pj R_j n_p)` (zero where the rest normal is
+    /// zero); empty without rest normals.
+    pub fn deform_normals(&self, st: &NodeState) -> Vec<Vector3<f64>> {
+        if self.normals.is_empty() {
+            return Vec::new();
+        }
+        (0..self.rest.len())
+            .into_par_iter()
+            .map(|p| {
+                let mut v = Vector3::zeros();
+                for a in 0..self.k {
+                    let j = self.pn_idx[p * self.k + a];
+                    v += self.pn_w[p * self.k + a] * (st.r[j] * self.normals[p]);
+                }
+                let l = v.norm();
+                if l > 0.0 {
+                    v / l
+                } else {
+                    Vector3::zeros()
+                }
+            })
+            .collect()
     }
 
     pub fn n_points(&self) -> usize {
@@ -651,6 +701,10 @@ pub struct FrameParams {
     /// uniform surface density whatever the viewing angle (foreshortening would otherwise
     /// pull template points towards the surfaces facing the camera). 0 = raw points.
     pub voxel_min: f64,
+    /// Normal agreement (pointrig deviation): with `kappa > 0`, rest normals on the graph and
+    /// data normals given, each posterior carries the von Mises-Fisher factor
+    /// `exp(kappa (n_i . n~_m - 1))` ([`estep_normals`]); 0 = positions only (paper).
+    pub kappa: f64,
 }
 
 /// Result of [`register_frame`].
@@ -672,7 +726,9 @@ fn flat(y: &[Vector3<f64>]) -> Vec<f64> {
     y.iter().flat_map(|v| [v.x, v.y, v.z]).collect()
 }
 
-/// Algorithm 1 for one frame: EM from the node transforms `init` against data `x` (N, 3).
+/// Algorithm 1 for one frame: EM from the node transforms `init` against data `x` (N, 3),
+/// with optional data normals `xn` (N, 3) used when `p.kappa > 0` and the graph has rest
+/// normals ([`FrameParams::kappa`]).
 ///
 /// Each iteration: E-step (Eq. 4, truncated if `cutoff`), then a rigid Kabsch step
 /// (first `rigid_iters` iterations) or the M-step solver, then sigma^2 by Eq. 12 (floored at
@@ -682,6 +738,7 @@ pub fn register_frame(
     g: &Graph,
     init: NodeState,
     x: &[f64],
+    xn: Option<&[f64]>,
     p: &FrameParams,
 ) -> CoreResult<FrameResult> {
     g.check_state(&init)?;
@@ -707,28 +764,68 @@ pub fn register_frame(
         };
     let mut full_data = !(p.subsample > 0.0);
     let mut y_cur = g.deform(&st);
-    let fine: Option<(Vec<f64>, Vec<f64>)> = (p.voxel_min > 0.0).then(|| {
-        let (c, w) = voxel_downsample(x, p.voxel_min);
+    // Data normals are used only with rest normals on the graph and kappa > 0.
+    let xn = match xn {
+        Some(v) if p.kappa > 0.0 && g.has_normals() => {
+            if v.len() != x.len() || !v.iter().all(|a| a.is_finite()) {
+                return Err(CoreError::InvalidInput(format!(
+                    "data normals must be finite with shape ({n}, 3)"
+                )));
+            }
+            Some(v)
+        }
+        _ => None,
+    };
+    // Points (flat), weights and normals (empty without normals) of a voxel grid of side h.
+    let downsample = |h: f64| {
+        let (c, w, mut nm) = voxel_downsample_with(x, xn, h);
+        for v in nm.chunks_exact_mut(3) {
+            let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            if l > 1e-9 {
+                v.iter_mut().for_each(|a| *a /= l);
+            }
+        }
+        (c, w, nm)
+    };
+    let fine: Option<(Vec<f64>, Vec<f64>, Vec<f64>)> = (p.voxel_min > 0.0).then(|| {
+        let (c, w, nm) = downsample(p.voxel_min);
         let ones = vec![1.0; w.len()];
-        (c, ones)
+        (c, ones, nm)
     });
     // Data mass of the fine stage (N, or the number of unit-weight voxels).
     let n_full = fine.as_ref().map_or(n, |f| f.1.len());
-    let full_estep = |y: &[f64], s2: f64| match &fine {
-        None => estep(y, x, s2, p.omega, p.cutoff, p.precision),
-        Some((c, w)) => estep_weighted(y, c, Some(w), s2, p.omega, p.cutoff, p.precision),
+    let any_estep = |y: &[f64], yn: &[f64], xs: &[f64], ws: Option<&[f64]>, xns: &[f64], s2| {
+        if xn.is_some() {
+            let nr = Normals {
+                y: yn,
+                x: xns,
+                kappa: p.kappa,
+            };
+            estep_normals(y, xs, ws, nr, s2, p.omega, p.cutoff, p.precision)
+        } else {
+            estep_weighted(y, xs, ws, s2, p.omega, p.cutoff, p.precision)
+        }
+    };
+    let full_estep = |y: &[f64], yn: &[f64], s2: f64| match &fine {
+        None => any_estep(y, yn, x, None, xn.unwrap_or(&[]), s2),
+        Some((c, w, nm)) => any_estep(y, yn, c, Some(w), nm, s2),
     };
     for it in 0..p.max_iter {
         let y = flat(&y_cur);
-        let es = if full_data {
-            full_estep(&y, s2)?
+        let yn = if xn.is_some() {
+            flat(&g.deform_normals(&st))
         } else {
-            let (xs, ws) = voxel_downsample(x, p.subsample * s2.sqrt());
+            Vec::new()
+        };
+        let es = if full_data {
+            full_estep(&y, &yn, s2)?
+        } else {
+            let (xs, ws, nm) = downsample(p.subsample * s2.sqrt());
             if 2 * ws.len() >= n_full {
                 full_data = true;
-                full_estep(&y, s2)?
+                full_estep(&y, &yn, s2)?
             } else {
-                estep_weighted(&y, &xs, Some(&ws), s2, p.omega, p.cutoff, p.precision)?
+                any_estep(&y, &yn, &xs, Some(&ws), &nm, s2)?
             }
         };
         n_p = es.stats.n_p;

@@ -199,6 +199,10 @@ struct Template<T> {
     yx: Vec<T>,
     yy: Vec<T>,
     yz: Vec<T>,
+    /// Scaled normals `s n~_m` (empty without normals; see [`estep_normals`]).
+    nx: Vec<T>,
+    ny: Vec<T>,
+    nz: Vec<T>,
 }
 
 /// Per-chunk partial sums (accumulators in template order of `Template`).
@@ -238,11 +242,13 @@ const LANES: usize = 8;
 const DENSE_BLOCK_FRACTION: f64 = 0.6;
 const BLOCK: usize = 4;
 
-/// `e[m] = exp(-|y_m - q|^2 inv2s)` (`d2` is scratch); returns `(sum_m e, sum_m e d^2)`.
+/// `e[m] = exp(-(|y_m - q|^2 + NRM |s n~_m - s n_q|^2) inv2s)` (`d2` is scratch, the
+/// position part only); returns `(sum_m e, sum_m e d^2)`.
 #[inline(always)]
-fn exp_row<T: Real>(
+fn exp_row<T: Real, const NRM: bool>(
     tpl: &Template<T>,
     q: [T; 3],
+    qn: [T; 3],
     inv2s: T,
     e: &mut [T],
     d2: &mut [T],
@@ -256,8 +262,19 @@ fn exp_row<T: Real>(
         let dz = z - q[2];
         *d = dx.fma(dx, dy.fma(dy, dz * dz));
     }
-    for (o, &d) in e.iter_mut().zip(d2.iter()) {
-        *o = T::exp_neg(T::ZERO - d * inv2s);
+    if NRM {
+        let (nx, ny, nz) = (&tpl.nx[..m], &tpl.ny[..m], &tpl.nz[..m]);
+        for ((((o, &d), &a), &b), &c) in e.iter_mut().zip(d2.iter()).zip(nx).zip(ny).zip(nz) {
+            let da = a - qn[0];
+            let db = b - qn[1];
+            let dc = c - qn[2];
+            let dn = da.fma(da, db.fma(db, dc * dc));
+            *o = T::exp_neg(T::ZERO - (d + dn) * inv2s);
+        }
+    } else {
+        for (o, &d) in e.iter_mut().zip(d2.iter()) {
+            *o = T::exp_neg(T::ZERO - d * inv2s);
+        }
     }
     lane_sums(e, d2)
 }
@@ -319,11 +336,13 @@ fn accumulate_block<T: Real>(
     }
 }
 
-/// Dense E-step over data points `xs` (centred, flat f64) with global index offset.
+/// Dense E-step over data points `xs` (centred, flat f64) with global index offset; `xn`
+/// holds their scaled normals when `NRM` (else it is empty).
 #[inline(always)]
-fn dense_chunk<T: Real>(
+fn dense_chunk<T: Real, const NRM: bool>(
     tpl: &Template<T>,
     xs: &[f64],
+    xn: &[f64],
     ws: Option<&[f64]>,
     inv2s: T,
     c0: f64,
@@ -345,7 +364,9 @@ fn dense_chunk<T: Real>(
                 T::from_f64(xs[3 * i + 1]),
                 T::from_f64(xs[3 * i + 2]),
             ];
-            let (s, w) = exp_row(tpl, q[b], inv2s, &mut e[b * m..(b + 1) * m], &mut d2);
+            let qn = query_normal::<T, NRM>(xn, i);
+            let (s, w) =
+                exp_row::<T, NRM>(tpl, q[b], qn, inv2s, &mut e[b * m..(b + 1) * m], &mut d2);
             let den = s + c0;
             let wi = ws.map_or(1.0, |v| v[i]);
             if den > 0.0 {
@@ -378,12 +399,30 @@ fn dense_chunk<T: Real>(
     part
 }
 
+/// The scaled normal of data point `i` (zeros without normals).
+#[inline(always)]
+fn query_normal<T: Real, const NRM: bool>(xn: &[f64], i: usize) -> [T; 3] {
+    if NRM {
+        [
+            T::from_f64(xn[3 * i]),
+            T::from_f64(xn[3 * i + 1]),
+            T::from_f64(xn[3 * i + 2]),
+        ]
+    } else {
+        [T::ZERO; 3]
+    }
+}
+
 /// Candidate template points of one group of queries, gathered contiguously (structure of
 /// arrays, padded to a multiple of `LANES`), with per-candidate accumulators.
 struct Gather<T> {
     x: Vec<T>,
     y: Vec<T>,
     z: Vec<T>,
+    /// Scaled normals (used with normals only).
+    nx: Vec<T>,
+    ny: Vec<T>,
+    nz: Vec<T>,
     /// Template index (sorted order) of each candidate.
     idx: Vec<u32>,
     p1: Vec<T>,
@@ -399,6 +438,9 @@ impl<T: Real> Gather<T> {
             x: vec![T::ZERO; cap],
             y: vec![T::ZERO; cap],
             z: vec![T::ZERO; cap],
+            nx: vec![T::ZERO; cap],
+            ny: vec![T::ZERO; cap],
+            nz: vec![T::ZERO; cap],
             idx: vec![0; cap],
             p1: vec![T::ZERO; cap],
             px: vec![T::ZERO; cap],
@@ -411,7 +453,12 @@ impl<T: Real> Gather<T> {
     /// candidates `n` and the padded length (a multiple of `LANES`; the padding sits at
     /// `far`, beyond any cutoff, so it gets weight 0).
     #[inline(always)]
-    fn fill(&mut self, tpl: &Template<T>, ranges: &[(u32, u32)], far: T) -> (usize, usize) {
+    fn fill<const NRM: bool>(
+        &mut self,
+        tpl: &Template<T>,
+        ranges: &[(u32, u32)],
+        far: T,
+    ) -> (usize, usize) {
         // Element loops, not copy_from_slice: the ranges are a few points long and a memmove
         // call per range costs more than the copy.
         let (gx, gy, gz, gi) = (&mut self.x, &mut self.y, &mut self.z, &mut self.idx);
@@ -430,6 +477,11 @@ impl<T: Real> Gather<T> {
             }
             for (d, k) in gi[off..end].iter_mut().zip(lo..hi) {
                 *d = k;
+            }
+            if NRM {
+                self.nx[off..end].copy_from_slice(&tpl.nx[a..b]);
+                self.ny[off..end].copy_from_slice(&tpl.ny[a..b]);
+                self.nz[off..end].copy_from_slice(&tpl.nz[a..b]);
             }
             off = end;
         }
@@ -450,10 +502,12 @@ impl<T: Real> Gather<T> {
     /// zero where `d_j^2 >= r2`; `d2` is scratch. Returns `(sum_j e_j, sum_j e_j d_j^2,
     /// number kept)`. Branch-free so that it vectorises.
     #[inline(always)]
-    fn eval(
+    #[allow(clippy::too_many_arguments)]
+    fn eval<const NRM: bool>(
         &self,
         len: usize,
         q: [T; 3],
+        qn: [T; 3],
         inv2s: T,
         r2: T,
         e: &mut [T],
@@ -469,11 +523,25 @@ impl<T: Real> Gather<T> {
             *d = dx.fma(dx, dy.fma(dy, dz * dz));
         }
         let mut kept = 0usize;
-        for (o, &d) in e.iter_mut().zip(d2.iter()) {
-            let v = T::exp_neg(T::ZERO - d * inv2s);
-            let keep = d < r2;
-            kept += keep as usize;
-            *o = if keep { v } else { T::ZERO };
+        if NRM {
+            let (nx, ny, nz) = (&self.nx[..len], &self.ny[..len], &self.nz[..len]);
+            for ((((o, &d), &a), &b), &c) in e.iter_mut().zip(d2.iter()).zip(nx).zip(ny).zip(nz) {
+                let da = a - qn[0];
+                let db = b - qn[1];
+                let dc = c - qn[2];
+                let dn = da.fma(da, db.fma(db, dc * dc));
+                let v = T::exp_neg(T::ZERO - (d + dn) * inv2s);
+                let keep = d < r2;
+                kept += keep as usize;
+                *o = if keep { v } else { T::ZERO };
+            }
+        } else {
+            for (o, &d) in e.iter_mut().zip(d2.iter()) {
+                let v = T::exp_neg(T::ZERO - d * inv2s);
+                let keep = d < r2;
+                kept += keep as usize;
+                *o = if keep { v } else { T::ZERO };
+            }
         }
         let (ss, ww) = lane_sums(e, d2);
         (ss, ww, kept)
@@ -490,10 +558,11 @@ impl<T: Real> Gather<T> {
 /// template's at the end of the group.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn truncated_chunk<T: Real>(
+fn truncated_chunk<T: Real, const NRM: bool>(
     tpl: &Template<T>,
     grid: &Grid,
     xs: &[f64],
+    xn: &[f64],
     keys: &[u64],
     ws: Option<&[f64]>,
     inv2s: T,
@@ -519,10 +588,10 @@ fn truncated_chunk<T: Real>(
             i1 += 1;
         }
         let (len, padded) = if key == u64::MAX {
-            g.fill(tpl, &[], far)
+            g.fill::<NRM>(tpl, &[], far)
         } else {
             let (ranges, nr) = grid.block([xs[3 * i0], xs[3 * i0 + 1], xs[3 * i0 + 2]]);
-            g.fill(tpl, &ranges[..nr], far)
+            g.fill::<NRM>(tpl, &ranges[..nr], far)
         };
         let mut b0 = i0;
         while b0 < i1 {
@@ -536,8 +605,9 @@ fn truncated_chunk<T: Real>(
                     T::from_f64(xs[3 * i + 1]),
                     T::from_f64(xs[3 * i + 2]),
                 ];
+                let qn = query_normal::<T, NRM>(xn, i);
                 let eb = &mut e[b * cap..b * cap + padded];
-                let (s, w, kept) = g.eval(padded, q[b], inv2s, r2, eb, &mut d2);
+                let (s, w, kept) = g.eval::<NRM>(padded, q[b], qn, inv2s, r2, eb, &mut d2);
                 let den = s + c0;
                 let dropped = (m - kept) as f64;
                 let wi = ws.map_or(1.0, |v| v[i]);
@@ -585,23 +655,25 @@ fn truncated_chunk<T: Real>(
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-unsafe fn dense_chunk_avx2<T: Real>(
+unsafe fn dense_chunk_avx2<T: Real, const NRM: bool>(
     tpl: &Template<T>,
     xs: &[f64],
+    xn: &[f64],
     ws: Option<&[f64]>,
     inv2s: T,
     c0: f64,
 ) -> Partial<T> {
-    dense_chunk(tpl, xs, ws, inv2s, c0)
+    dense_chunk::<T, NRM>(tpl, xs, xn, ws, inv2s, c0)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 #[allow(clippy::too_many_arguments)]
-unsafe fn truncated_chunk_avx2<T: Real>(
+unsafe fn truncated_chunk_avx2<T: Real, const NRM: bool>(
     tpl: &Template<T>,
     grid: &Grid,
     xs: &[f64],
+    xn: &[f64],
     keys: &[u64],
     ws: Option<&[f64]>,
     inv2s: T,
@@ -609,7 +681,7 @@ unsafe fn truncated_chunk_avx2<T: Real>(
     radius: f64,
     eps: f64,
 ) -> Partial<T> {
-    truncated_chunk(tpl, grid, xs, keys, ws, inv2s, c0, radius, eps)
+    truncated_chunk::<T, NRM>(tpl, grid, xs, xn, keys, ws, inv2s, c0, radius, eps)
 }
 
 fn has_avx2_fma() -> bool {
@@ -624,10 +696,11 @@ fn has_avx2_fma() -> bool {
 }
 
 #[allow(clippy::too_many_arguments)]
-fn truncated_dispatch<T: Real>(
+fn truncated_dispatch<T: Real, const NRM: bool>(
     tpl: &Template<T>,
     grid: &Grid,
     xs: &[f64],
+    xn: &[f64],
     keys: &[u64],
     ws: Option<&[f64]>,
     inv2s: T,
@@ -640,16 +713,17 @@ fn truncated_dispatch<T: Real>(
         if has_avx2_fma() {
             // SAFETY: the CPU supports the enabled features (checked just above).
             return unsafe {
-                truncated_chunk_avx2(tpl, grid, xs, keys, ws, inv2s, c0, radius, eps)
+                truncated_chunk_avx2::<T, NRM>(tpl, grid, xs, xn, keys, ws, inv2s, c0, radius, eps)
             };
         }
     }
-    truncated_chunk(tpl, grid, xs, keys, ws, inv2s, c0, radius, eps)
+    truncated_chunk::<T, NRM>(tpl, grid, xs, xn, keys, ws, inv2s, c0, radius, eps)
 }
 
-fn dense_dispatch<T: Real>(
+fn dense_dispatch<T: Real, const NRM: bool>(
     tpl: &Template<T>,
     xs: &[f64],
+    xn: &[f64],
     ws: Option<&[f64]>,
     inv2s: T,
     c0: f64,
@@ -658,10 +732,10 @@ fn dense_dispatch<T: Real>(
     {
         if has_avx2_fma() {
             // SAFETY: the CPU supports the enabled features (checked just above).
-            return unsafe { dense_chunk_avx2(tpl, xs, ws, inv2s, c0) };
+            return unsafe { dense_chunk_avx2::<T, NRM>(tpl, xs, xn, ws, inv2s, c0) };
         }
     }
-    dense_chunk(tpl, xs, ws, inv2s, c0)
+    dense_chunk::<T, NRM>(tpl, xs, xn, ws, inv2s, c0)
 }
 
 /// Data points per chunk: depends on N only (determinism across thread counts).
@@ -700,6 +774,105 @@ fn validate(y: &[f64], x: &[f64], sigma2: f64, omega: f64, cutoff: Option<f64>) 
     Ok(())
 }
 
+/// Unit surface normals of the template and the data for [`estep_normals`].
+#[derive(Debug, Clone, Copy)]
+pub struct Normals<'a> {
+    /// Template normals `n~_m`, flat `(M, 3)`, unit length.
+    pub y: &'a [f64],
+    /// Data normals `n_i`, flat `(N, 3)`, unit length (or zero: no orientation information).
+    pub x: &'a [f64],
+    /// Concentration `kappa` of the von Mises-Fisher factor (> 0).
+    pub kappa: f64,
+}
+
+/// The kernels over all data chunks; returns the partial sums in chunk order and the data
+/// order used (empty: input order).
+#[allow(clippy::too_many_arguments)]
+fn chunks<T: Real, const NRM: bool>(
+    tpl: &Template<T>,
+    grid: Option<&(Grid, f64, f64)>,
+    xc: &[f64],
+    xn: &[f64],
+    wx: Option<&[f64]>,
+    inv2s: T,
+    c0: f64,
+) -> (Vec<Partial<T>>, Vec<usize>) {
+    let n = xc.len() / 3;
+    let cl = chunk_len(n);
+    let nrm = |ci: usize, len: usize| -> &[f64] {
+        if NRM {
+            &xn[3 * ci * cl..3 * (ci * cl + len)]
+        } else {
+            &[]
+        }
+    };
+    match grid {
+        None => {
+            let parts = xc
+                .par_chunks(3 * cl)
+                .enumerate()
+                .map(|(ci, xs)| {
+                    let len = xs.len() / 3;
+                    let ws = wx.map(|w| &w[ci * cl..ci * cl + len]);
+                    dense_dispatch::<T, NRM>(tpl, xs, nrm(ci, len), ws, inv2s, c0)
+                })
+                .collect();
+            (parts, Vec::new())
+        }
+        Some((g, radius, eps)) => {
+            // Data sorted by grid key (ties by index: deterministic), so that consecutive
+            // points share their cell block; Pt1 is put back in input order by the caller.
+            let mut keyed: Vec<(u64, u32)> = xc
+                .par_chunks_exact(3)
+                .enumerate()
+                .map(|(i, p)| (g.key([p[0], p[1], p[2]]), i as u32))
+                .collect();
+            // (key, index) pairs are distinct, so the sorted order is unique.
+            keyed.par_sort_unstable();
+            let perm: Vec<usize> = keyed.iter().map(|&(_, i)| i as usize).collect();
+            let keys: Vec<u64> = keyed.iter().map(|&(k, _)| k).collect();
+            let gather = |v: &[f64]| -> Vec<f64> {
+                perm.iter()
+                    .flat_map(|&i| [v[3 * i], v[3 * i + 1], v[3 * i + 2]])
+                    .collect()
+            };
+            let xs_sorted = gather(xc);
+            let xn_sorted = if NRM { gather(xn) } else { Vec::new() };
+            let ws_sorted: Option<Vec<f64>> = wx.map(|w| perm.iter().map(|&i| w[i]).collect());
+            let parts = xs_sorted
+                .par_chunks(3 * cl)
+                .zip(keys.par_chunks(cl))
+                .enumerate()
+                .map(|(ci, (xs, ks))| {
+                    let len = xs.len() / 3;
+                    let ws = ws_sorted.as_ref().map(|w| &w[ci * cl..ci * cl + len]);
+                    let xn = if NRM {
+                        &xn_sorted[3 * ci * cl..3 * (ci * cl + len)]
+                    } else {
+                        &[]
+                    };
+                    truncated_dispatch::<T, NRM>(tpl, g, xs, xn, ks, ws, inv2s, c0, *radius, *eps)
+                })
+                .collect();
+            (parts, perm)
+        }
+    }
+}
+
+fn validate_weights(x: &[f64], wx: Option<&[f64]>) -> CoreResult<()> {
+    if let Some(w) = wx {
+        if w.len() * 3 != x.len() || !w.iter().all(|v| v.is_finite() && *v >= 0.0) {
+            return Err(CoreError::InvalidInput(
+                "data weights must be N finite non-negative values".into(),
+            ));
+        }
+        if w.iter().sum::<f64>() <= 0.0 {
+            return Err(CoreError::InvalidInput("data weights sum to zero".into()));
+        }
+    }
+    Ok(())
+}
+
 fn run<T: Real>(
     y: &[f64],
     x: &[f64],
@@ -707,6 +880,7 @@ fn run<T: Real>(
     sigma2: f64,
     omega: f64,
     cutoff: Option<f64>,
+    normals: Option<Normals>,
 ) -> EStep {
     let m = y.len() / 3;
     let n = x.len() / 3;
@@ -732,8 +906,22 @@ fn run<T: Real>(
         .collect();
 
     let two_pi_s2 = 2.0 * std::f64::consts::PI * sigma2;
-    let c0 = two_pi_s2.powf(1.5) * omega * m as f64 / ((1.0 - omega) * n_eff);
+    // With normals each component's density has the von Mises-Fisher factor
+    // `kappa / (2 pi (1 - e^{-2 kappa})) exp(kappa (n . n~ - 1))` and the outlier term the
+    // uniform `1 / (4 pi)` on the sphere: `c0` takes their ratio.
+    let vmf_norm = normals.map_or(1.0, |nr| {
+        nr.kappa / (2.0 * std::f64::consts::PI * (1.0 - (-2.0 * nr.kappa).exp()))
+    });
+    let outlier_sphere = if normals.is_some() {
+        1.0 / (4.0 * std::f64::consts::PI)
+    } else {
+        1.0
+    };
+    let c0 = two_pi_s2.powf(1.5) * omega * m as f64 / ((1.0 - omega) * n_eff) * outlier_sphere
+        / vmf_norm;
     let inv2s = T::from_f64(1.0 / (2.0 * sigma2));
+    // `kappa (1 - n . n~) = |s n - s n~|^2 / (2 sigma^2)` with `s^2 = kappa sigma^2`.
+    let s_n = normals.map_or(0.0, |nr| (nr.kappa * sigma2).sqrt());
 
     // With a cutoff so wide that a 3x3x3 cell block holds most of the template, the exact
     // dense kernel is as fast: it runs instead (bound 0).
@@ -747,55 +935,36 @@ fn run<T: Real>(
         Some((g, _, _)) => g.order().iter().map(|&k| k as usize).collect(),
         None => (0..m).collect(),
     };
+    let yn: &[f64] = normals.map_or(&[], |nr| nr.y);
+    let scaled = |k: usize, a: usize| T::from_f64(s_n * yn[3 * k + a]);
+    let has_n = normals.is_some();
     let tpl = Template {
         yx: order.iter().map(|&k| T::from_f64(yc[3 * k])).collect(),
         yy: order.iter().map(|&k| T::from_f64(yc[3 * k + 1])).collect(),
         yz: order.iter().map(|&k| T::from_f64(yc[3 * k + 2])).collect(),
-    };
-
-    let cl = chunk_len(n);
-    // Data order used by the kernels (empty: input order).
-    let mut perm: Vec<usize> = Vec::new();
-    let parts: Vec<Partial<T>> = match &grid {
-        None => xc
-            .par_chunks(3 * cl)
-            .enumerate()
-            .map(|(ci, xs)| {
-                let ws = wx.map(|w| &w[ci * cl..ci * cl + xs.len() / 3]);
-                dense_dispatch(&tpl, xs, ws, inv2s, c0)
-            })
+        nx: order
+            .iter()
+            .filter(|_| has_n)
+            .map(|&k| scaled(k, 0))
             .collect(),
-        Some((g, radius, eps)) => {
-            // Data sorted by grid key (ties by index: deterministic), so that consecutive
-            // points share their cell block; Pt1 is put back in input order below.
-            let mut keyed: Vec<(u64, u32)> = xc
-                .par_chunks_exact(3)
-                .enumerate()
-                .map(|(i, p)| (g.key([p[0], p[1], p[2]]), i as u32))
-                .collect();
-            // (key, index) pairs are distinct, so the sorted order is unique.
-            keyed.par_sort_unstable();
-            perm = keyed.iter().map(|&(_, i)| i as usize).collect();
-            let keys: Vec<u64> = keyed.iter().map(|&(k, _)| k).collect();
-            let xs_sorted: Vec<f64> = perm
-                .iter()
-                .flat_map(|&i| [xc[3 * i], xc[3 * i + 1], xc[3 * i + 2]])
-                .collect();
-            let ws_sorted: Option<Vec<f64>> = wx.map(|w| perm.iter().map(|&i| w[i]).collect());
-            xs_sorted
-                .par_chunks(3 * cl)
-                .zip(keys.par_chunks(cl))
-                .enumerate()
-                .map(|(ci, (xs, ks))| {
-                    let ws = ws_sorted
-                        .as_ref()
-                        .map(|w| &w[ci * cl..ci * cl + xs.len() / 3]);
-                    truncated_dispatch(&tpl, g, xs, ks, ws, inv2s, c0, *radius, *eps)
-                })
-                .collect()
-        }
+        ny: order
+            .iter()
+            .filter(|_| has_n)
+            .map(|&k| scaled(k, 1))
+            .collect(),
+        nz: order
+            .iter()
+            .filter(|_| has_n)
+            .map(|&k| scaled(k, 2))
+            .collect(),
     };
+    let xn: Vec<f64> = normals.map_or(Vec::new(), |nr| nr.x.iter().map(|v| s_n * v).collect());
 
+    let (parts, perm) = if has_n {
+        chunks::<T, true>(&tpl, grid.as_ref(), &xc, &xn, wx, inv2s, c0)
+    } else {
+        chunks::<T, false>(&tpl, grid.as_ref(), &xc, &[], wx, inv2s, c0)
+    };
     let mut p1s = vec![0.0f64; m];
     let mut pxs = vec![0.0f64; 3 * m];
     let mut pt1s = Vec::with_capacity(n);
@@ -838,7 +1007,7 @@ fn run<T: Real>(
         .zip(x.chunks_exact(3))
         .map(|(w, p)| w * (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]))
         .sum();
-    let log_norm = ((1.0 - omega) / (m as f64 * two_pi_s2.powf(1.5))).ln();
+    let log_norm = ((1.0 - omega) * vmf_norm / (m as f64 * two_pi_s2.powf(1.5))).ln();
     stats.nll = -log_den - n_eff * log_norm;
     stats.e_gmm = stats.sum_sq / (2.0 * sigma2) + 1.5 * stats.n_p * sigma2.ln();
     EStep { p1, pt1, px, stats }
@@ -874,19 +1043,59 @@ pub fn estep_weighted(
     precision: Precision,
 ) -> CoreResult<EStep> {
     validate(y, x, sigma2, omega, cutoff)?;
-    if let Some(w) = wx {
-        if w.len() * 3 != x.len() || !w.iter().all(|v| v.is_finite() && *v >= 0.0) {
-            return Err(CoreError::InvalidInput(
-                "data weights must be N finite non-negative values".into(),
-            ));
-        }
-        if w.iter().sum::<f64>() <= 0.0 {
-            return Err(CoreError::InvalidInput("data weights sum to zero".into()));
-        }
-    }
+    validate_weights(x, wx)?;
     Ok(match precision {
-        Precision::Double => run::<f64>(y, x, wx, sigma2, omega, cutoff),
-        Precision::Single => run::<f32>(y, x, wx, sigma2, omega, cutoff),
+        Precision::Double => run::<f64>(y, x, wx, sigma2, omega, cutoff, None),
+        Precision::Single => run::<f32>(y, x, wx, sigma2, omega, cutoff, None),
+    })
+}
+
+/// [`estep_weighted`] with surface normals: each pair's Gaussian is multiplied by the von
+/// Mises-Fisher factor `exp(kappa (n_i . n~_m - 1))` (normalised, and the outlier term
+/// uniform over directions), so that a template point prefers data whose surface faces the
+/// same way. `P1`, `PX`, `Pt1`, the Eq. 12 sum (positions only) keep their meaning; the
+/// log-likelihood includes the normal factor. `kappa = 0` is [`estep_weighted`] exactly.
+#[allow(clippy::too_many_arguments)]
+pub fn estep_normals(
+    y: &[f64],
+    x: &[f64],
+    wx: Option<&[f64]>,
+    normals: Normals,
+    sigma2: f64,
+    omega: f64,
+    cutoff: Option<f64>,
+    precision: Precision,
+) -> CoreResult<EStep> {
+    let Normals {
+        y: yn,
+        x: xn,
+        kappa,
+    } = normals;
+    if yn.len() != y.len() || xn.len() != x.len() {
+        return Err(CoreError::InvalidInput(format!(
+            "normals must match the points: template {} vs {}, data {} vs {} values",
+            yn.len(),
+            y.len(),
+            xn.len(),
+            x.len()
+        )));
+    }
+    if !(kappa.is_finite() && kappa >= 0.0) {
+        return Err(CoreError::InvalidInput(format!(
+            "kappa must be non-negative and finite, got {kappa}"
+        )));
+    }
+    if !yn.iter().chain(xn).all(|v| v.is_finite()) {
+        return Err(CoreError::NonFinite("normals".into()));
+    }
+    if kappa == 0.0 {
+        return estep_weighted(y, x, wx, sigma2, omega, cutoff, precision);
+    }
+    validate(y, x, sigma2, omega, cutoff)?;
+    validate_weights(x, wx)?;
+    Ok(match precision {
+        Precision::Double => run::<f64>(y, x, wx, sigma2, omega, cutoff, Some(normals)),
+        Precision::Single => run::<f32>(y, x, wx, sigma2, omega, cutoff, Some(normals)),
     })
 }
 
@@ -1079,5 +1288,103 @@ mod tests {
         assert!(
             estep_weighted(&y, &x, Some(&w[..10]), 0.004, 0.1, None, Precision::Double).is_err()
         );
+    }
+
+    /// Unit vectors from a deterministic sequence.
+    fn unit(n: usize, seed: f64) -> Vec<f64> {
+        let raw = cloud(n, seed);
+        raw.chunks_exact(3)
+            .flat_map(|p| {
+                let v = [p[0] - 0.15, p[1] - 0.15, p[2] - 0.15 + 1e-3];
+                let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                [v[0] / l, v[1] / l, v[2] / l]
+            })
+            .collect()
+    }
+
+    #[test]
+    fn normals_match_a_brute_force_mixture_with_a_von_mises_fisher_factor() {
+        let (m, n) = (250, 600);
+        let y = cloud(m, 0.3);
+        let x = cloud(n, 5.1);
+        let yn = unit(m, 2.2);
+        let xn = unit(n, 9.7);
+        let (s2, om, kappa): (f64, f64, f64) = (0.003, 0.1, 3.0);
+        // Oracle: Gaussian x normalised vMF per component, uniform position x uniform
+        // direction (1 / (4 pi)) for the outlier term; everything straight from the formulas.
+        let pi = std::f64::consts::PI;
+        let vmf = kappa / (2.0 * pi * (1.0 - (-2.0 * kappa).exp()));
+        let gauss = 1.0 / (2.0 * pi * s2).powf(1.5);
+        let out = om / (n as f64) / (4.0 * pi);
+        let (mut p1, mut pt1, mut ss, mut nll) = (vec![0.0; m], vec![0.0; n], 0.0, 0.0);
+        let mut px = vec![0.0; 3 * m];
+        for i in 0..n {
+            let mut dens = vec![0.0; m];
+            for k in 0..m {
+                let d2: f64 = (0..3).map(|a| (x[3 * i + a] - y[3 * k + a]).powi(2)).sum();
+                let c: f64 = (0..3).map(|a| xn[3 * i + a] * yn[3 * k + a]).sum();
+                dens[k] = (1.0 - om) / m as f64
+                    * gauss
+                    * (-d2 / (2.0 * s2)).exp()
+                    * vmf
+                    * (kappa * (c - 1.0)).exp();
+            }
+            let den: f64 = dens.iter().sum::<f64>() + out;
+            nll -= den.ln();
+            for k in 0..m {
+                let d2: f64 = (0..3).map(|a| (x[3 * i + a] - y[3 * k + a]).powi(2)).sum();
+                let p = dens[k] / den;
+                p1[k] += p;
+                pt1[i] += p;
+                ss += p * d2;
+                for a in 0..3 {
+                    px[3 * k + a] += p * x[3 * i + a];
+                }
+            }
+        }
+        let nr = Normals {
+            y: &yn,
+            x: &xn,
+            kappa,
+        };
+        for (cut, prec, tol) in [
+            (None, Precision::Double, 1e-10),
+            (Some(8.0), Precision::Double, 1e-9),
+            (None, Precision::Single, 2e-5),
+            (Some(8.0), Precision::Single, 2e-5),
+        ] {
+            let r = estep_normals(&y, &x, None, nr, s2, om, cut, prec).unwrap();
+            for k in 0..m {
+                assert!(
+                    (r.p1[k] - p1[k]).abs() < tol * p1[k].max(1.0),
+                    "{k} {cut:?}"
+                );
+                for a in 0..3 {
+                    assert!((r.px[3 * k + a] - px[3 * k + a]).abs() < tol * p1[k].max(1.0));
+                }
+            }
+            for i in 0..n {
+                assert!((r.pt1[i] - pt1[i]).abs() < tol, "{i} {cut:?}");
+            }
+            assert!((r.stats.sum_sq - ss).abs() < tol * ss.max(1.0));
+            assert!(
+                (r.stats.nll - nll).abs() < tol * nll.abs().max(1.0),
+                "{cut:?}"
+            );
+        }
+        // kappa = 0 is the plain E-step; the factor changes the posteriors when on.
+        let z = Normals { kappa: 0.0, ..nr };
+        let plain = estep(&y, &x, s2, om, None, Precision::Double).unwrap();
+        let r0 = estep_normals(&y, &x, None, z, s2, om, None, Precision::Double).unwrap();
+        assert_eq!(plain.p1, r0.p1);
+        let r1 = estep_normals(&y, &x, None, nr, s2, om, None, Precision::Double).unwrap();
+        assert!(plain
+            .p1
+            .iter()
+            .zip(&r1.p1)
+            .any(|(a, b)| (a - b).abs() > 1e-3));
+        // Mismatched lengths are refused, not a panic.
+        let bad = Normals { y: &yn[..30], ..nr };
+        assert!(estep_normals(&y, &x, None, bad, s2, om, None, Precision::Double).is_err());
     }
 }

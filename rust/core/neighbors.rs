@@ -5,6 +5,11 @@
 //! around the query's cell. Along x the three cells of a block row are consecutive in the
 //! sorted order, so a query visits at most 9 contiguous index ranges.
 
+use nalgebra::{Matrix3, SymmetricEigen, Vector3};
+use rayon::prelude::*;
+
+use crate::core::error::{CoreError, CoreResult};
+
 /// Cap on the number of cells; the cell side grows when the bounding box would need more.
 const MAX_CELLS: usize = 1 << 22;
 
@@ -201,6 +206,107 @@ impl Grid {
     }
 }
 
+/// Unit surface normals at `query` points (flat `(n, 3)`) from the `source` points (flat
+/// `(N, 3)`) within `radius` (metres): the direction of least spread of those neighbours
+/// (the least-squares plane's normal), flipped to face `camera`. The source is first reduced
+/// to count-weighted voxel centroids of side `radius / 4` (a plane at that scale needs no
+/// more, and a dense frame would otherwise cost thousands of neighbours per query). A query
+/// with fewer than 3 neighbouring centroids, or a degenerate (collinear) neighbourhood, gets
+/// a zero normal. Each query is independent, so the result does not depend on the thread
+/// count.
+pub fn surface_normals(
+    query: &[f64],
+    source: &[f64],
+    radius: f64,
+    camera: [f64; 3],
+) -> CoreResult<Vec<f64>> {
+    if !query.len().is_multiple_of(3) || !source.len().is_multiple_of(3) {
+        return Err(CoreError::InvalidInput(
+            "points must have shape (n, 3)".into(),
+        ));
+    }
+    if !(radius.is_finite() && radius > 0.0) {
+        return Err(CoreError::InvalidInput(format!(
+            "normal radius must be positive and finite, got {radius}"
+        )));
+    }
+    if !query
+        .iter()
+        .chain(source)
+        .chain(&camera)
+        .all(|v| v.is_finite())
+    {
+        return Err(CoreError::NonFinite("points or camera".into()));
+    }
+    if source.is_empty() {
+        return Ok(vec![0.0; query.len()]);
+    }
+    let (cent, cnt) = voxel_downsample(source, 0.25 * radius);
+    let grid = Grid::new(&cent, radius);
+    let order = grid.order();
+    let r2 = radius * radius;
+    let out: Vec<[f64; 3]> = query
+        .par_chunks_exact(3)
+        .map(|q| {
+            let mut n = 0usize;
+            let mut wsum = 0.0;
+            let mut s = Vector3::zeros();
+            let mut ss = Matrix3::zeros();
+            grid.ranges([q[0], q[1], q[2]], |lo, hi| {
+                for &k in &order[lo..hi] {
+                    let k = k as usize;
+                    // relative to the query: better conditioned sums
+                    let d = Vector3::new(
+                        cent[3 * k] - q[0],
+                        cent[3 * k + 1] - q[1],
+                        cent[3 * k + 2] - q[2],
+                    );
+                    if d.norm_squared() <= r2 {
+                        let w = cnt[k];
+                        n += 1;
+                        wsum += w;
+                        s += w * d;
+                        ss += w * (d * d.transpose());
+                    }
+                }
+            });
+            if n < 3 {
+                return [0.0; 3];
+            }
+            let m = s / wsum;
+            let cov = ss / wsum - m * m.transpose();
+            let eig = SymmetricEigen::new(cov);
+            let (mut lo, mut second) = (0, 1);
+            for a in 0..3 {
+                if eig.eigenvalues[a] < eig.eigenvalues[lo] {
+                    lo = a;
+                }
+            }
+            for a in 0..3 {
+                if a != lo && (second == lo || eig.eigenvalues[a] < eig.eigenvalues[second]) {
+                    second = a;
+                }
+            }
+            // collinear neighbours (a line of points): no plane
+            if eig.eigenvalues[second].is_nan() || eig.eigenvalues[second] <= 0.0 {
+                return [0.0; 3];
+            }
+            let mut v = eig.eigenvectors.column(lo).into_owned();
+            let l = v.norm();
+            if l.is_nan() || l <= 0.0 {
+                return [0.0; 3];
+            }
+            v /= l;
+            let to_cam = Vector3::new(camera[0] - q[0], camera[1] - q[1], camera[2] - q[2]);
+            if v.dot(&to_cam) < 0.0 {
+                v = -v;
+            }
+            [v.x, v.y, v.z]
+        })
+        .collect();
+    Ok(out.into_iter().flatten().collect())
+}
+
 /// Voxel-grid subsampling: the centroid of the points of each occupied cubic cell of side
 /// `h` and the number of points it stands for, `(centroids (K, 3) flat, counts (K,))`.
 ///
@@ -208,9 +314,25 @@ impl Grid {
 /// result is deterministic. `h` must be positive and finite (otherwise the input is returned
 /// with unit counts).
 pub fn voxel_downsample(points: &[f64], h: f64) -> (Vec<f64>, Vec<f64>) {
+    let (c, w, _) = voxel_downsample_with(points, None, h);
+    (c, w)
+}
+
+/// [`voxel_downsample`] that also averages a per-point 3-vector `attr` (flat `(N, 3)`, e.g.
+/// surface normals) over each cell; the third result is the per-cell means (empty without
+/// `attr`).
+pub fn voxel_downsample_with(
+    points: &[f64],
+    attr: Option<&[f64]>,
+    h: f64,
+) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
     let n = points.len() / 3;
     if n == 0 || !(h.is_finite() && h > 0.0) {
-        return (points.to_vec(), vec![1.0; n]);
+        return (
+            points.to_vec(),
+            vec![1.0; n],
+            attr.map_or(Vec::new(), |a| a.to_vec()),
+        );
     }
     let mut lo = [f64::INFINITY; 3];
     for p in points.chunks_exact(3) {
@@ -236,23 +358,33 @@ pub fn voxel_downsample(points: &[f64], h: f64) -> (Vec<f64>, Vec<f64>) {
     keyed.sort_unstable();
     let mut cent = Vec::new();
     let mut cnt = Vec::new();
+    let mut means = Vec::new();
     let mut i = 0;
     while i < keyed.len() {
         let mut j = i;
         let mut s = [0.0f64; 3];
+        let mut sa = [0.0f64; 3];
         while j < keyed.len() && keyed[j].0 == keyed[i].0 {
             let q = keyed[j].1 as usize;
             for a in 0..3 {
                 s[a] += points[3 * q + a];
             }
+            if let Some(v) = attr {
+                for a in 0..3 {
+                    sa[a] += v[3 * q + a];
+                }
+            }
             j += 1;
         }
         let c = (j - i) as f64;
         cent.extend_from_slice(&[s[0] / c, s[1] / c, s[2] / c]);
+        if attr.is_some() {
+            means.extend_from_slice(&[sa[0] / c, sa[1] / c, sa[2] / c]);
+        }
         cnt.push(c);
         i = j;
     }
-    (cent, cnt)
+    (cent, cnt, means)
 }
 
 #[cfg(test)]
@@ -366,5 +498,42 @@ mod tests {
         for p in c.chunks_exact(3) {
             assert!(p.iter().all(|v| (0.0..=1.0).contains(v)));
         }
+    }
+
+    #[test]
+    fn surface_normals_match_a_sphere_and_face_the_camera() {
+        // the camera-facing half of a sphere of radius 0.3 m centred 2 m in front of it
+        let c = [0.1, -0.05, 2.0];
+        let mut pts = Vec::new();
+        let mut dirs = Vec::new();
+        let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+        let n = 8000;
+        for i in 0..n {
+            let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
+            let r = (1.0 - z * z).sqrt();
+            let d = [
+                r * (golden * i as f64).cos(),
+                r * (golden * i as f64).sin(),
+                z,
+            ];
+            if d[2] < -0.2 {
+                pts.extend_from_slice(&[c[0] + 0.3 * d[0], c[1] + 0.3 * d[1], c[2] + 0.3 * d[2]]);
+                dirs.push(d);
+            }
+        }
+        let nr = surface_normals(&pts, &pts, 0.03, [0.0; 3]).unwrap();
+        for (v, d) in nr.chunks_exact(3).zip(&dirs) {
+            let cos = v[0] * d[0] + v[1] * d[1] + v[2] * d[2];
+            assert!(cos > 0.995, "{cos}");
+        }
+        // a camera behind the sphere flips them; an isolated query gets zero
+        let back = surface_normals(&pts, &pts, 0.03, [0.0, 0.0, 5.0]).unwrap();
+        assert!(back
+            .chunks_exact(3)
+            .zip(&dirs)
+            .all(|(v, d)| v[0] * d[0] + v[1] * d[1] + v[2] * d[2] < 0.0));
+        let far = surface_normals(&[9.0, 9.0, 9.0], &pts, 0.03, [0.0; 3]).unwrap();
+        assert_eq!(far, vec![0.0; 3]);
+        assert!(surface_normals(&pts, &pts, 0.0, [0.0; 3]).is_err());
     }
 }

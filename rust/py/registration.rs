@@ -77,6 +77,7 @@ struct DeformGraph {
 #[pymethods]
 impl DeformGraph {
     #[new]
+    #[pyo3(signature = (rest, nodes, pn_idx, pn_w, edges, normals=None))]
     fn new(
         py: Python<'_>,
         rest: PyReadonlyArray2<'_, f64>,
@@ -84,6 +85,7 @@ impl DeformGraph {
         pn_idx: PyReadonlyArray2<'_, i64>,
         pn_w: PyReadonlyArray2<'_, f64>,
         edges: PyReadonlyArray2<'_, i64>,
+        normals: Option<PyReadonlyArray2<'_, f64>>,
     ) -> PyResult<Self> {
         let r = points(py, &rest, "rest")?;
         let n = points(py, &nodes, "nodes")?;
@@ -94,7 +96,11 @@ impl DeformGraph {
             return Err(PyValueError::new_err("edges must have shape (E, 2)"));
         }
         let e = edges.c_slice("edges")?;
-        let g = Graph::new(r, n, idx, w, k, e).map_err(|e| to_pyerr(py, e))?;
+        let mut g = Graph::new(r, n, idx, w, k, e).map_err(|e| to_pyerr(py, e))?;
+        if let Some(nm) = normals {
+            let nv = points(py, &nm, "normals")?;
+            g.set_normals(nv).map_err(|e| to_pyerr(py, e))?;
+        }
         Ok(DeformGraph { g })
     }
 
@@ -120,6 +126,24 @@ impl DeformGraph {
     ) -> PyResult<Bound<'py, PyArray2<f64>>> {
         let st = read_state(py, &r, &t, self.g.n_nodes())?;
         let y = py.detach(|| self.g.deform(&st));
+        vec_points(py, &y)
+    }
+
+    /// Deformed rest normals `normalise(sum_j w R_j n)`, (M, 3); needs the rotations only.
+    fn deform_normals<'py>(
+        &self,
+        py: Python<'py>,
+        r: PyReadonlyArray3<'py, f64>,
+    ) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        if !self.g.has_normals() {
+            return Err(PyValueError::new_err(
+                "deform_normals: the graph was built without normals",
+            ));
+        }
+        let j = self.g.n_nodes();
+        let t = numpy::PyArray2::<f64>::zeros(py, [j, 3], false);
+        let st = read_state(py, &r, &t.readonly(), j)?;
+        let y = py.detach(|| self.g.deform_normals(&st));
         vec_points(py, &y)
     }
 
@@ -270,7 +294,7 @@ impl DeformGraph {
     #[allow(clippy::too_many_arguments)]
     #[pyo3(signature = (x, r, t, *, sigma2_start, omega, beta_smooth, beta_relative, beta_small,
         sigma2_min, anneal, anneal_floor, max_iter, tol, cutoff, single, rigid_iters, solver, damping, cg_tol, cg_max,
-        subsample=0.0, motion_tol=0.0, voxel_min=0.0, robust=0.0))]
+        subsample=0.0, motion_tol=0.0, voxel_min=0.0, robust=0.0, x_normals=None, kappa=0.0))]
     fn register_frame<'py>(
         &self,
         py: Python<'py>,
@@ -298,8 +322,14 @@ impl DeformGraph {
         motion_tol: f64,
         voxel_min: f64,
         robust: f64,
+        x_normals: Option<PyReadonlyArray2<'py, f64>>,
+        kappa: f64,
     ) -> PyResult<Bound<'py, PyDict>> {
         let xs = points(py, &x, "x")?;
+        let xn = match &x_normals {
+            Some(a) => Some(points(py, a, "x_normals")?),
+            None => None,
+        };
         let st = read_state(py, &r, &t, self.g.n_nodes())?;
         let solver = match solver {
             "gauss_newton" => Solver::GaussNewton,
@@ -336,9 +366,10 @@ impl DeformGraph {
             motion_tol,
             voxel_min,
             robust,
+            kappa,
         };
         let res = py
-            .detach(|| deform::register_frame(&self.g, st, xs, &p))
+            .detach(|| deform::register_frame(&self.g, st, xs, xn, &p))
             .map_err(|e| to_pyerr(py, e))?;
         let d = PyDict::new(py);
         let (r, t) = write_state(py, &res.state)?;
@@ -422,8 +453,29 @@ fn gmm_estep<'py>(
     ))
 }
 
+/// Camera-facing unit surface normals of `query` from the `source` points within `radius`
+/// (see `_core.pyi`).
+#[pyfunction]
+#[pyo3(signature = (query, source, radius, camera=(0.0, 0.0, 0.0)))]
+fn surface_normals<'py>(
+    py: Python<'py>,
+    query: PyReadonlyArray2<'py, f64>,
+    source: PyReadonlyArray2<'py, f64>,
+    radius: f64,
+    camera: (f64, f64, f64),
+) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    let q = points(py, &query, "query")?;
+    let s = points(py, &source, "source")?;
+    let cam = [camera.0, camera.1, camera.2];
+    let n = py
+        .detach(|| crate::core::neighbors::surface_normals(q, s, radius, cam))
+        .map_err(|e| to_pyerr(py, e))?;
+    to_array2(py, n, 3)
+}
+
 pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(gmm_estep, m)?)?;
+    m.add_function(wrap_pyfunction!(surface_normals, m)?)?;
     m.add_class::<DeformGraph>()?;
     Ok(())
 }
