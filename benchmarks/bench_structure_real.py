@@ -46,7 +46,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_registration_downstream import FIGURES, score_joints, score_step2  # noqa: E402
 
-from pointrig.config import PipelineConfig, StructureConfig  # noqa: E402
+from pointrig.config import PipelineConfig, RegistrationConfig, StructureConfig  # noqa: E402
 from pointrig.evaluate import SWING_SOURCES  # noqa: E402
 from pointrig.joints import learn_joints  # noqa: E402
 from pointrig.pipeline import build_skeleton  # noqa: E402
@@ -93,7 +93,9 @@ def _load(fig: str, frames: int, cache: Path | None, registration: dict) -> dict
         if "registration" not in d:
             print(f"note: {cache / name} predates session 19 and does not record its "
                   "registration parameters", file=sys.stderr)
-        elif d["registration"] != dataclasses.asdict(config):
+        # a field added after the cache was written holds its default (the behaviour before)
+        elif {**dataclasses.asdict(RegistrationConfig()), **d["registration"]} \
+                != dataclasses.asdict(config):
             raise SystemExit(f"{cache / name} was registered with other parameters than "
                              f"the defaults + {registration}: use another --cache")
         return d

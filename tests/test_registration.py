@@ -392,3 +392,65 @@ def test_geodesic_node_edges_cut_touching_parts_and_keep_fragments() -> None:
         with pytest.raises(ConfigError, match="node_geodesic_ratio"):
             register_sequence(PointSequence([rest, rest]),
                               RegistrationConfig(node_geodesic_ratio=bad))
+
+
+def test_estimate_normals_match_a_sphere_and_face_the_camera() -> None:
+    """Plane normals of the camera-facing half of a sphere against the closed form (the
+    radial direction) and a numpy k-NN PCA, flipped towards the camera; no neighbours, zero."""
+    from pointrig.preprocess import estimate_normals
+
+    rng = np.random.default_rng(4)
+    d = rng.normal(size=(6000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    centre = np.array([0.1, -0.05, 2.0])
+    d = d[d[:, 2] < -0.2]  # the half facing a camera at the origin
+    pts = centre + 0.3 * d
+    n = estimate_normals(pts, 0.04)
+    assert n.shape == pts.shape
+    np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-9)
+    cos = np.einsum("ni,ni->n", n, d)
+    assert np.all(cos > 0)  # outward, i.e. towards the camera, on this half
+    assert np.percentile(cos, 5) > 0.99
+    # the scipy/numpy route (plane of the 12 nearest points) agrees to within a few degrees
+    _, idx = cKDTree(pts).query(pts, k=12)
+    nb = pts[idx] - pts[idx].mean(1, keepdims=True)
+    ref = np.linalg.eigh(np.einsum("nki,nkj->nij", nb, nb))[1][:, :, 0]
+    assert np.percentile(np.abs(np.einsum("ni,ni->n", n, ref)), 5) > 0.99
+    # a camera behind the sphere flips them all; a point with no neighbours gets zero
+    assert np.all(np.einsum("ni,ni->n", estimate_normals(pts, 0.04, camera=(0, 0, 5.0)), d) < 0)
+    assert not estimate_normals(np.array([[9.0, 9, 9]]), 0.04, source=pts).any()
+
+
+def test_normal_agreement_is_off_at_zero_and_validated() -> None:
+    """``normal_kappa = 0`` is the positions-only registration bit for bit; a positive kappa
+    changes it (the posteriors carry the normal factor); bad values are a ConfigError."""
+    frames, _ = capsule_arm(4, 20.0, n=3000, seed=1)
+    seq = PointSequence(frames)
+    base = register_sequence(seq, _clean_cfg())
+    off = register_sequence(seq, _clean_cfg(normal_kappa=0.0, normal_radius=3.0))
+    on = register_sequence(seq, _clean_cfg(normal_kappa=2.0))
+    np.testing.assert_array_equal(base.points, off.points)
+    assert np.abs(on.points - base.points).max() > 1e-6
+    assert np.isfinite(on.points).all()
+    for bad in (dict(normal_kappa=-1.0), dict(normal_kappa=float("nan")),
+                dict(normal_kappa=1.0, normal_radius=0.0)):
+        with pytest.raises(ConfigError, match="normal_"):
+            register_sequence(seq, _clean_cfg(**bad))
+
+
+def test_graph_normals_rotate_with_the_nodes() -> None:
+    """Deformed normals follow the node rotations: one rotation for every node turns every
+    normal by it (the registration's template normals); wrong shapes are refused."""
+    g, _, _ = _graph_case()
+    rng = np.random.default_rng(2)
+    nrm = rng.normal(size=g.rest.shape)
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    g.normals = nrm
+    native = g.native()
+    j = len(g.nodes)
+    rot = Rotation.from_rotvec([0.3, -0.2, 0.5]).as_matrix()
+    r = np.ascontiguousarray(np.broadcast_to(rot, (j, 3, 3)))
+    got = native.deform_normals(r)
+    np.testing.assert_allclose(got, nrm @ rot.T, atol=1e-12)
+    with pytest.raises(ValueError, match="normals"):
+        _core.DeformGraph(g.rest, g.nodes, g.pn_idx, g.pn_w, g.edges, nrm[:-1])

@@ -132,6 +132,13 @@ class RegistrationConfig:
     cg_tolerance: float = 1e-6  # relative residual of the block-Jacobi PCG solve
     cg_max_iterations: int = 300
     subsample: float = 1.0  # coarse E-step on voxel centroids of side subsample * sigma (count-weighted) while that halves N (0 = full data)
+    # normal agreement: each E-step posterior carries exp(normal_kappa (n_data . n_template - 1))
+    # (von Mises-Fisher; normals = camera-facing least-squares planes of the points within
+    # normal_radius x the rest-point spacing, the template's rotated with the graph), so a
+    # template point prefers data whose surface faces the same way (0 = positions only, as
+    # the paper; docs/registration.md, session 23)
+    normal_kappa: float = 0.0
+    normal_radius: float = 1.5
     smooth_robust: float = 0.0  # robust E_smooth: Cauchy scale c x edge rest length (0 = quadratic Eq. 6; docs/registration.md)
     motion_tol: float = 0.1  # early stop: RMS template motion in one iteration < motion_tol * sigma (0 = off)
     density_voxel: float = 0.0  # fine-stage data = unit-weight voxel centroids of side density_voxel x rest-point spacing (uniform density; 0 = raw points)

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from scipy.spatial import cKDTree
 
+from . import _core
 from .errors import EmptyFrameError, InputError
 
 if TYPE_CHECKING:
@@ -73,6 +74,39 @@ def mls_project(points: np.ndarray, k: int = 16, source: np.ndarray | None = Non
     normal = vecs[:, :, 0]
     off = np.einsum("ni,ni->n", points - c, normal)
     return points - off[:, None] * normal
+
+
+def estimate_normals(
+    points: np.ndarray,
+    radius: float,
+    camera: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    source: np.ndarray | None = None,
+) -> np.ndarray:
+    """Unit surface normals of a single-view cloud, facing the camera (Rust, parallel).
+
+    Parameters
+    ----------
+    points
+        ``(n, 3)`` query points, metres.
+    radius
+        The least-squares plane of each query is fitted to the ``source`` points within this
+        distance, metres.
+    camera
+        Camera centre in the points' frame, metres: each normal is flipped to point towards
+        it, as every surface a depth camera sees faces it.
+    source
+        ``(N, 3)`` points the planes are fitted to, metres (default ``points``).
+
+    Returns
+    -------
+    np.ndarray
+        ``(n, 3)`` float64 unit normals; a zero row where fewer than 3 source points (or only
+        collinear ones) lie within ``radius``.
+    """
+    pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+    src = pts if source is None else np.ascontiguousarray(source, dtype=np.float64)
+    cam = tuple(float(v) for v in camera)
+    return _core.surface_normals(pts, src, float(radius), cam)
 
 
 def farthest_point_sampling(points: np.ndarray, n: int, seed: int = 0) -> np.ndarray:

@@ -31,7 +31,7 @@ from . import _core
 from .config import RegistrationConfig
 from .errors import ConfigError, FormatError
 from .io import write_npz
-from .preprocess import chamfer_misfit, farthest_point_sampling, rest_surface
+from .preprocess import chamfer_misfit, estimate_normals, farthest_point_sampling, rest_surface
 from .sequence import PointSequence
 
 __all__ = [
@@ -130,9 +130,11 @@ class DeformationGraph:
     pn_idx: np.ndarray
     pn_w: np.ndarray
     edges: np.ndarray
+    normals: np.ndarray | None = None  # (M, 3) unit rest-pose normals, or None
 
     def native(self) -> Any:
-        return _core.DeformGraph(self.rest, self.nodes, self.pn_idx, self.pn_w, self.edges)
+        return _core.DeformGraph(self.rest, self.nodes, self.pn_idx, self.pn_w, self.edges,
+                                 self.normals)
 
 
 def build_graph(rest: np.ndarray, config: RegistrationConfig) -> DeformationGraph:
@@ -255,6 +257,12 @@ def _validate(config: RegistrationConfig, n_frames: int) -> None:
             "[registration] predict_check must be in [0, 1] (0 = always start from the "
             f"prediction), got {config.predict_check!r}"
         )
+    if not (np.isfinite(config.normal_kappa) and config.normal_kappa >= 0) \
+            or not (np.isfinite(config.normal_radius) and config.normal_radius > 0):
+        raise ConfigError(
+            "[registration] normal_kappa must be >= 0 (0 = off) and normal_radius > 0, got "
+            f"{config.normal_kappa!r}, {config.normal_radius!r}"
+        )
     if not (config.node_geodesic_ratio == 0 or config.node_geodesic_ratio >= 1):
         raise ConfigError(
             "[registration] node_geodesic_ratio must be 0 (off) or >= 1 (a geodesic path is "
@@ -350,6 +358,7 @@ def register_sequence(
             "sequence spans %.0f units: parameters assume metres (Table 1); scale the input",
             np.linalg.norm(hi - lo),
         )
+    kw = _frame_kwargs(config)
     rest = rest_surface(
         seq.frames[rf],
         config.n_rest_points,
@@ -359,10 +368,15 @@ def register_sequence(
         seed=config.seed,
     )
     graph = build_graph(rest, config)
+    normal_radius = 0.0
+    if config.normal_kappa > 0:
+        spacing = float(np.mean(cKDTree(rest).query(rest, k=2)[0][:, 1]))
+        normal_radius = config.normal_radius * spacing
+        graph.normals = estimate_normals(rest, normal_radius, source=seq.frames[rf])
+        kw["kappa"] = config.normal_kappa
     g = graph.native()
     j = len(graph.nodes)
     m = len(rest)
-    kw = _frame_kwargs(config)
     if config.density_voxel > 0:
         spacing = float(np.mean(cKDTree(rest).query(rest, k=2)[0][:, 1]))
         kw["voxel_min"] = config.density_voxel * spacing
@@ -401,6 +415,8 @@ def register_sequence(
                 log.debug("frame %d: the previous pose explains it better than the prediction "
                           "(misfit %.4f < %.4f m); holding it", t, m_hold, m_pred)
                 r_init, t_init = prev[0].copy(), prev[1].copy()
+        if config.normal_kappa > 0:
+            kw["x_normals"] = estimate_normals(x, normal_radius)
         res = _register_one(g, x, r_init, t_init, config, kw)
         frac = res["n_p"] / max(res["n_data"], 1)
         if frac < config.lost_fraction and prev is not None:
