@@ -368,17 +368,17 @@ def register_sequence(
         seed=config.seed,
     )
     graph = build_graph(rest, config)
-    normal_radius = 0.0
+    # mean nearest-neighbour distance of the rest points: the length scale of the
+    # template's resolution, for the options measured against it
+    spacing = float(np.mean(cKDTree(rest).query(rest, k=2)[0][:, 1]))
+    normal_radius = config.normal_radius * spacing
     if config.normal_kappa > 0:
-        spacing = float(np.mean(cKDTree(rest).query(rest, k=2)[0][:, 1]))
-        normal_radius = config.normal_radius * spacing
         graph.normals = estimate_normals(rest, normal_radius, source=seq.frames[rf])
         kw["kappa"] = config.normal_kappa
     g = graph.native()
     j = len(graph.nodes)
     m = len(rest)
     if config.density_voxel > 0:
-        spacing = float(np.mean(cKDTree(rest).query(rest, k=2)[0][:, 1]))
         kw["voxel_min"] = config.density_voxel * spacing
 
     points = np.zeros((f, m, 3))
