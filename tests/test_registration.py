@@ -422,13 +422,14 @@ def test_estimate_normals_match_a_sphere_and_face_the_camera() -> None:
 
 
 def test_normal_agreement_is_off_at_zero_and_validated() -> None:
-    """``normal_kappa = 0`` is the positions-only registration bit for bit; a positive kappa
-    changes it (the posteriors carry the normal factor); bad values are a ConfigError."""
+    """``normal_kappa = 0`` is the positions-only registration bit for bit (whatever the
+    radius); the default kappa changes it (the posteriors carry the normal factor); bad
+    values are a ConfigError."""
     frames, _ = capsule_arm(4, 20.0, n=3000, seed=1)
     seq = PointSequence(frames)
-    base = register_sequence(seq, _clean_cfg())
+    base = register_sequence(seq, _clean_cfg(normal_kappa=0.0))
     off = register_sequence(seq, _clean_cfg(normal_kappa=0.0, normal_radius=3.0))
-    on = register_sequence(seq, _clean_cfg(normal_kappa=2.0))
+    on = register_sequence(seq, _clean_cfg())  # the default, kappa = 1
     np.testing.assert_array_equal(base.points, off.points)
     assert np.abs(on.points - base.points).max() > 1e-6
     assert np.isfinite(on.points).all()

@@ -137,7 +137,7 @@ class RegistrationConfig:
     # normal_radius x the rest-point spacing, the template's rotated with the graph), so a
     # template point prefers data whose surface faces the same way (0 = positions only, as
     # the paper; docs/registration.md, session 23)
-    normal_kappa: float = 0.0
+    normal_kappa: float = 1.0
     normal_radius: float = 1.5
     smooth_robust: float = 0.0  # robust E_smooth: Cauchy scale c x edge rest length (0 = quadratic Eq. 6; docs/registration.md)
     motion_tol: float = 0.1  # early stop: RMS template motion in one iteration < motion_tol * sigma (0 = off)
@@ -167,6 +167,7 @@ class RegistrationConfig:
             predict_velocity=0.0,
             sigma2_anneal=1.0,
             node_geodesic_ratio=0.0,
+            normal_kappa=0.0,
         )
         base.update(overrides)
         return cls(**base)
