@@ -127,11 +127,14 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--wide", action="store_true", help="also the 16 sequences of WIDE")
     ap.add_argument("--registration", default="{}", help="RegistrationConfig overrides (JSON) "
                     "for the registered mode; a cache holds one registration variant")
+    ap.add_argument("--joints-config", default="{}", help="JointsConfig overrides (JSON) for "
+                    "step 3 (with --joints)")
     ap.add_argument("--swing-source", default="auto", choices=SWING_SOURCES,
                     help="the scorer's articulation test: the rig's bone transforms (auto) "
                     "or Kabsch fits of the surface parts (the rule before session 21)")
     a = ap.parse_args(argv)
     reg_over = json.loads(a.registration)
+    joints_cfg = dataclasses.replace(PipelineConfig().joints, **json.loads(a.joints_config))
     variants = [json.loads(v) for v in a.variants]
     rows: dict[tuple[str, str], list[tuple[float, ...]]] = {}
     corr: list[float] = []
@@ -161,7 +164,7 @@ def main(argv: list[str]) -> int:
                      st.n_bones / max(r.n_scorable, 1), 100 * r.raw_error))
                 line.append(f"{mode} {r.recall:.2f}/{r.precision:.2f}/{st.n_bones}")
                 if a.joints and mode == "reg":
-                    jr = learn_joints(frames, q, y, st, PipelineConfig().joints)
+                    jr = learn_joints(frames, q, y, st, joints_cfg)
                     sk = build_skeleton(q, st.bone_parent, jr.joints_rest, jr.R, jr.T,
                                         jr.weights, None)
                     r3 = score_joints(sk.joint_positions, syn, a.swing_source)
