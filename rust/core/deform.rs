@@ -243,22 +243,12 @@ impl Graph {
         if self.normals.is_empty() {
             return Vec::new();
         }
-        (0..self.rest.len())
-            .into_par_iter()
-            .map(|p| {
-                let mut v = Vector3::zeros();
-                for a in 0..self.k {
-                    let j = self.pn_idx[p * self.k + a];
-                    v += self.pn_w[p * self.k + a] * (st.r[j] * self.normals[p]);
-                }
-                let l = v.norm();
-                if l > 0.0 {
-                    v / l
-                } else {
-                    Vector3::zeros()
-                }
-            })
-            .collect()
+        let mut v = self.blend(|p, j| st.r[j] * self.normals[p]);
+        for n in &mut v {
+            let l = n.norm();
+            *n = if l > 0.0 { *n / l } else { Vector3::zeros() };
+        }
+        v
     }
 
     pub fn n_points(&self) -> usize {
@@ -284,14 +274,20 @@ impl Graph {
 
     /// Deformed points `y'` (Eq. 2).
     pub fn deform(&self, st: &NodeState) -> Vec<Vector3<f64>> {
+        self.blend(|p, j| st.r[j] * (self.rest[p] - self.nodes[j]) + self.nodes[j] + st.t[j])
+    }
+
+    /// Per point `p`, `sum_a w_pa f(p, j_a)` over the nodes driving it (parallel over points).
+    fn blend<F>(&self, f: F) -> Vec<Vector3<f64>>
+    where
+        F: Fn(usize, usize) -> Vector3<f64> + Sync,
+    {
         (0..self.rest.len())
             .into_par_iter()
             .map(|p| {
                 let mut y = Vector3::zeros();
                 for a in 0..self.k {
-                    let j = self.pn_idx[p * self.k + a];
-                    let w = self.pn_w[p * self.k + a];
-                    y += w * (st.r[j] * (self.rest[p] - self.nodes[j]) + self.nodes[j] + st.t[j]);
+                    y += self.pn_w[p * self.k + a] * f(p, self.pn_idx[p * self.k + a]);
                 }
                 y
             })

@@ -242,6 +242,15 @@ const LANES: usize = 8;
 const DENSE_BLOCK_FRACTION: f64 = 0.6;
 const BLOCK: usize = 4;
 
+/// `|(x, y, z) - q|^2` with fused multiply-adds (the kernels' one distance formula).
+#[inline(always)]
+fn dist2<T: Real>(x: T, y: T, z: T, q: [T; 3]) -> T {
+    let dx = x - q[0];
+    let dy = y - q[1];
+    let dz = z - q[2];
+    dx.fma(dx, dy.fma(dy, dz * dz))
+}
+
 /// `e[m] = exp(-(|y_m - q|^2 + NRM |s n~_m - s n_q|^2) inv2s)` (`d2` is scratch, the
 /// position part only); returns `(sum_m e, sum_m e d^2)`.
 #[inline(always)]
@@ -257,19 +266,12 @@ fn exp_row<T: Real, const NRM: bool>(
     let e = &mut e[..m];
     let d2 = &mut d2[..m];
     for (((d, &x), &y), &z) in d2.iter_mut().zip(&tpl.yx).zip(&tpl.yy).zip(&tpl.yz) {
-        let dx = x - q[0];
-        let dy = y - q[1];
-        let dz = z - q[2];
-        *d = dx.fma(dx, dy.fma(dy, dz * dz));
+        *d = dist2(x, y, z, q);
     }
     if NRM {
         let (nx, ny, nz) = (&tpl.nx[..m], &tpl.ny[..m], &tpl.nz[..m]);
         for ((((o, &d), &a), &b), &c) in e.iter_mut().zip(d2.iter()).zip(nx).zip(ny).zip(nz) {
-            let da = a - qn[0];
-            let db = b - qn[1];
-            let dc = c - qn[2];
-            let dn = da.fma(da, db.fma(db, dc * dc));
-            *o = T::exp_neg(T::ZERO - (d + dn) * inv2s);
+            *o = T::exp_neg(T::ZERO - (d + dist2(a, b, c, qn)) * inv2s);
         }
     } else {
         for (o, &d) in e.iter_mut().zip(d2.iter()) {
@@ -517,20 +519,13 @@ impl<T: Real> Gather<T> {
         let d2 = &mut d2[..len];
         let (xs, ys, zs) = (&self.x[..len], &self.y[..len], &self.z[..len]);
         for (((d, &x), &y), &z) in d2.iter_mut().zip(xs).zip(ys).zip(zs) {
-            let dx = x - q[0];
-            let dy = y - q[1];
-            let dz = z - q[2];
-            *d = dx.fma(dx, dy.fma(dy, dz * dz));
+            *d = dist2(x, y, z, q);
         }
         let mut kept = 0usize;
         if NRM {
             let (nx, ny, nz) = (&self.nx[..len], &self.ny[..len], &self.nz[..len]);
             for ((((o, &d), &a), &b), &c) in e.iter_mut().zip(d2.iter()).zip(nx).zip(ny).zip(nz) {
-                let da = a - qn[0];
-                let db = b - qn[1];
-                let dc = c - qn[2];
-                let dn = da.fma(da, db.fma(db, dc * dc));
-                let v = T::exp_neg(T::ZERO - (d + dn) * inv2s);
+                let v = T::exp_neg(T::ZERO - (d + dist2(a, b, c, qn)) * inv2s);
                 let keep = d < r2;
                 kept += keep as usize;
                 *o = if keep { v } else { T::ZERO };
