@@ -235,6 +235,39 @@ def test_batched_estep_matches_per_frame_kernel_and_single_precision():
     np.testing.assert_allclose(single.PX, got.PX, atol=1e-4)
 
 
+def test_batched_estep_with_normals_matches_a_numpy_von_mises_fisher_mixture():
+    """``e_step(..., normals=(XN, VN, kappa))`` (the tracker's E-step with normal agreement)
+    against a dense numpy mixture: Gaussian x normalised vMF per component, uniform position
+    x uniform direction for the outlier term."""
+    from pointrig.joints import e_step, pack_frames
+
+    rng = np.random.default_rng(3)
+    fig = make_figure("human", n_frames=2, n_points=300, n_obs=700)
+    unit = lambda a: a / np.linalg.norm(a, axis=-1, keepdims=True)  # noqa: E731
+    XN = unit(rng.normal(size=fig.registered.shape))
+    V, offsets = pack_frames(fig.frames)
+    VN = unit(rng.normal(size=V.shape))
+    tau, omega, kappa = np.array([6e-4, 2e-4]), 0.05, 1.5
+    got = e_step(fig.frames, fig.registered, tau, omega, radius_sigmas=None,
+                 normals=(XN, VN, kappa))
+    for t in range(2):
+        x, xn = fig.registered[t], XN[t]
+        v, vn = V[offsets[t]:offsets[t + 1]], VN[offsets[t]:offsets[t + 1]]
+        m, n = len(x), len(v)
+        d2 = ((x[:, None] - v[None]) ** 2).sum(-1)
+        vmf = kappa / (2 * np.pi * (1 - np.exp(-2 * kappa)))
+        dens = (1 - omega) / m * np.exp(-d2 / (2 * tau[t])) / (2 * np.pi * tau[t]) ** 1.5 \
+            * vmf * np.exp(kappa * (xn @ vn.T - 1))
+        p = dens / (dens.sum(0) + omega / n / (4 * np.pi))
+        np.testing.assert_allclose(got.P1[t], p.sum(1), rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(got.PX[t], p @ v, rtol=1e-9, atol=1e-12)
+        assert got.Np[t] == pytest.approx(p.sum(), rel=1e-10)
+    plain = e_step(fig.frames, fig.registered, tau, omega, radius_sigmas=None)
+    assert np.abs(plain.P1 - got.P1).max() > 1e-3  # the factor matters
+    with pytest.raises(ValueError, match="normals"):
+        e_step(fig.frames, fig.registered, tau, omega, normals=(XN, VN[:-1], kappa))
+
+
 def test_joint_normal_sums_match_numpy():
     rng = np.random.default_rng(3)
     F, M, E = 4, 50, 5
@@ -354,7 +387,8 @@ def test_tracking_config_errors():
     st = step2_standin(fig)
     for bad in (dict(init="x"), dict(track_iterations=0), dict(track_anneal=0.0),
                 dict(track_tau_max=0.0), dict(track_velocity=-1.0),
-                dict(track_predict_check=1.5)):
+                dict(track_predict_check=1.5), dict(track_normal_kappa=-1.0),
+                dict(normal_radius=0.0)):
         with pytest.raises(ConfigError):
             learn_joints(fig.frames, fig.rest_points, fig.registered, st, JointsConfig(**bad))
     with pytest.raises(InputError):

@@ -82,10 +82,13 @@ def lbs_sweep_articulated(
 def lbs_estep_frames(
     x: npt.NDArray[np.float64], v: npt.NDArray[np.float64], offsets: npt.NDArray[np.int64],
     tau: npt.NDArray[np.float64], omega: float, cutoff: float | None = None,
-    single: bool = False,
+    single: bool = False, xn: npt.NDArray[np.float64] | None = None,
+    vn: npt.NDArray[np.float64] | None = None, kappa: float = 0.0,
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64],
            npt.NDArray[np.float64]]:
-    """E-step (Eq. 4, §6.2 form) of every frame in one call, parallel over frames: centroids
+    """E-step (Eq. 4, §6.2 form) of every frame in one call, parallel over frames (with unit
+    normals ``xn (F*M, 3)``, ``vn (sum N_t, 3)`` and ``kappa > 0``, each pair weighed by
+    ``exp(kappa (n . n~ - 1))``): centroids
     ``x (F*M, 3)``, observed points ``v (sum N_t, 3)`` with frame t in rows
     ``offsets[t]:offsets[t+1]`` (``offsets (F+1,)``), ``tau (F,)`` m^2; ``cutoff`` and
     ``single`` as in :func:`gmm_estep`. Returns ``P1 (F, M)``, ``PX (F*M, 3)``, ``N_p (F,)``,

@@ -378,6 +378,11 @@ class JointsConfig:
     # better by this factor (symmetric chamfer, as [registration] predict_check; 0 = always
     # predict)
     track_predict_check: float = 1.0
+    # normal agreement in the tracker's E-step, as [registration] normal_kappa: bones carry
+    # their rest normals (planes of the rest frame within normal_radius x the rest-point
+    # spacing), the frames camera-facing plane normals; 0 = positions only
+    track_normal_kappa: float = 1.0
+    normal_radius: float = 1.5
     track_from_structure: bool = True  # also fit each frame from step 2's pose of it and keep
     #   the pose with the smaller symmetric chamfer misfit to the frame
     # --- truncated E-step (Eq. 4 restricted to near neighbours) ---

@@ -42,12 +42,13 @@ from pathlib import Path
 from typing import Any, Callable, Protocol, Sequence
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from . import _core
 from .config import JointsConfig
 from .errors import ConfigError, InputError
 from .kinematics import joint_trajectories, solve_joint_positions
-from .preprocess import chamfer_misfit
+from .preprocess import chamfer_misfit, estimate_normals
 from .view import view_depth_correct
 
 __all__ = ["JointsResult", "StructureLike", "learn_joints", "e_step", "e_step_numpy",
@@ -155,6 +156,7 @@ def e_step(
     single: bool = False,
     *,
     packed: tuple[np.ndarray, np.ndarray] | None = None,
+    normals: tuple[np.ndarray, np.ndarray, float] | None = None,
 ) -> EStats:
     """Posteriors of Eq. 4 (form of §6.2) of every frame in one Rust call
     (``_core.lbs_estep_frames``: parallel over frames, each truncated at
@@ -164,13 +166,22 @@ def e_step(
     ``n_neighbors`` is only used by the numpy reference :func:`e_step_numpy`.
     Shapes: ``frames`` F arrays ``(N_t, 3)``; ``X (F, M, 3)``; ``tau (F,)`` m^2.
     ``packed`` = ``(V, offsets)`` from :func:`pack_frames` (skips the concatenation).
+    ``normals`` = ``(XN (F, M, 3), VN (sum N_t, 3), kappa)``: unit normals of the centroids and
+    of the packed observed points; each pair is weighed by ``exp(kappa (n . n~ - 1))``.
     """
     F, M, _ = X.shape
     V, offsets = packed if packed is not None else pack_frames(frames)
+    xn = vn = None
+    kappa = 0.0
+    if normals is not None:
+        xn = np.ascontiguousarray(normals[0].reshape(F * M, 3), dtype=np.float64)
+        vn = np.ascontiguousarray(normals[1], dtype=np.float64)
+        kappa = float(normals[2])
     P1, PX, Np, sxx = _core.lbs_estep_frames(
         np.ascontiguousarray(X.reshape(F * M, 3)), V, offsets,
         np.ascontiguousarray(tau, dtype=np.float64), float(omega),
-        None if radius_sigmas is None else float(radius_sigmas), bool(single))
+        None if radius_sigmas is None else float(radius_sigmas), bool(single),
+        xn, vn, kappa)
     return EStats(P1.reshape(F, M), PX.reshape(F, M, 3), Np, sxx)
 
 
@@ -443,6 +454,7 @@ def track_bones(
     rest_index: int,
     config: JointsConfig,
     progress: Callable[[int, int], None] | None = None,
+    normals: tuple[np.ndarray, Sequence[np.ndarray]] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Track step 2's skeleton through the observed frames (the ``init="track"`` start of
     step 3).
@@ -479,6 +491,10 @@ def track_bones(
         Step 3's parameters (E-step, ``gamma``, ``track_*``).
     progress
         Called as ``progress(frames_done, F)`` after each frame.
+    normals
+        ``(rest normals (M, 3), F observed normals (N_t, 3))``, unit: with
+        ``config.track_normal_kappa > 0`` the E-step weighs pairs by normal agreement, each
+        rest normal turned by its bone.
 
     Returns
     -------
@@ -505,10 +521,11 @@ def track_bones(
         Rf, Tf = _flat_rt(Rb[None], Tb[None])
         return _core.lbs_skin(Q, idx, w, Rf, Tf, 1).reshape(M, 3)
 
-    from scipy.spatial import cKDTree
+    use_normals = normals is not None and config.track_normal_kappa > 0
 
     def fit_frame(v: np.ndarray, packed: tuple[np.ndarray, np.ndarray], tree: Any,
-                  Rt: np.ndarray, Tt: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                  Rt: np.ndarray, Tt: np.ndarray,
+                  vn: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         Tt, X = _fixed_joint_translations(Rt, Tt[root], joints, parent, skin)
         d2 = tree.query(X)[0] ** 2
         tau = float(np.clip(4.0 / 3.0 * d2.mean(), tau0, tau_max))
@@ -516,8 +533,13 @@ def track_bones(
         k_coarse = (int(np.ceil(np.log(tau / tau0) / np.log(1.0 / anneal)))
                     if tau > tau0 and 0 < anneal < 1 else 0)
         for it in range(config.track_iterations):
+            nrm = None
+            if use_normals and vn is not None:
+                xn = np.einsum("mab,mb->ma", Rt[labels], normals[0])
+                nrm = (xn[None], vn, config.track_normal_kappa)
             es = e_step([v], X[None], np.array([tau]), config.omega, config.estep_neighbors,
-                        config.estep_radius_sigmas, config.estep_single, packed=packed)
+                        config.estep_radius_sigmas, config.estep_single, packed=packed,
+                        normals=nrm)
             a = es.P1[0] / tau
             if config.gmm_density_normalize:
                 a = a * (M / len(v))
@@ -579,7 +601,8 @@ def track_bones(
         packed = pack_frames([v])
         best = None
         for Rs, Ts in starts:
-            Rt, Tt, X = fit_frame(v, packed, tree, Rs, Ts)
+            Rt, Tt, X = fit_frame(v, packed, tree, Rs, Ts,
+                                  normals[1][t] if use_normals else None)
             score = chamfer_misfit(X, v, trunc, tree) if len(starts) > 1 else 0.0
             if best is None or score < best[0]:
                 best = (score, Rt, Tt)
@@ -720,10 +743,12 @@ def learn_joints(
     cfg = config or JointsConfig()  # its choices (mode, init, ...) were checked when made
     if cfg.init == "track" and not (cfg.track_iterations >= 1 and 0 < cfg.track_anneal <= 1
                                     and cfg.track_tau_max > 0 and cfg.track_velocity >= 0
-                                    and 0 <= cfg.track_predict_check <= 1):
+                                    and 0 <= cfg.track_predict_check <= 1
+                                    and cfg.track_normal_kappa >= 0 and cfg.normal_radius > 0):
         raise ConfigError("joints: track_iterations >= 1, 0 < track_anneal <= 1, "
-                          "track_tau_max > 0, track_velocity >= 0 and "
-                          "0 <= track_predict_check <= 1 are required")
+                          "track_tau_max > 0, track_velocity >= 0, "
+                          "0 <= track_predict_check <= 1, track_normal_kappa >= 0 and "
+                          "normal_radius > 0 are required")
     Q = np.ascontiguousarray(rest_points, dtype=np.float64)
     Y = np.ascontiguousarray(registered, dtype=np.float64)
     frames = [np.ascontiguousarray(v, dtype=np.float64) for v in frames]
@@ -746,7 +771,15 @@ def learn_joints(
         if not 0 <= rest_index < F:
             raise InputError(f"rest_index {rest_index} outside the {F} frames")
         t_tr = time.perf_counter()
-        R, T = track_bones(obs_all, Q, structure, int(rest_index), cfg, track_progress)
+        track_normals = None
+        if cfg.track_normal_kappa > 0:
+            radius = cfg.normal_radius * float(np.mean(cKDTree(Q).query(Q, k=2)[0][:, 1]))
+            track_normals = (
+                estimate_normals(Q, radius, source=frames[int(rest_index)]),
+                [estimate_normals(o, radius, source=v) for o, v in zip(obs_all, frames)],
+            )
+        R, T = track_bones(obs_all, Q, structure, int(rest_index), cfg, track_progress,
+                           track_normals)
         t_track = time.perf_counter() - t_tr
     joints = np.array(structure.joints_rest, dtype=float)
     W = np.zeros((M, B))

@@ -48,6 +48,10 @@ pub struct FramesEStep {
 /// `x^t_m`), observed points `v` (all frames concatenated, frame t = rows
 /// `offsets[t]..offsets[t+1]`), variances `tau (F)`. Frames run in parallel (rayon), each with
 /// [`crate::core::gmm::estep`] (`cutoff` in units of `sqrt(tau^t)`, `None` = dense).
+///
+/// `normals = Some((xn, vn, kappa))` (unit normals of the centroids, `F*M*3`, and of the
+/// observed points, like `v`) weighs each pair by normal agreement
+/// ([`crate::core::gmm::estep_normals`]).
 #[allow(clippy::too_many_arguments)]
 pub fn estep_frames(
     x: &[f64],
@@ -57,6 +61,7 @@ pub fn estep_frames(
     omega: f64,
     cutoff: Option<f64>,
     precision: crate::core::gmm::Precision,
+    normals: Option<(&[f64], &[f64], f64)>,
 ) -> CoreResult<FramesEStep> {
     let f = tau.len();
     if f == 0 || offsets.len() != f + 1 || !x.len().is_multiple_of(3 * f) {
@@ -73,17 +78,37 @@ pub fn estep_frames(
             "estep_frames: offsets must increase strictly from 0 to the number of points".into(),
         ));
     }
+    if let Some((xn, vn, _)) = normals {
+        if xn.len() != x.len() || vn.len() != v.len() {
+            return Err(CoreError::InvalidInput(
+                "estep_frames: normals must match the centroids and the observed points".into(),
+            ));
+        }
+    }
     let per: Vec<CoreResult<crate::core::gmm::EStep>> = (0..f)
         .into_par_iter()
         .map(|t| {
-            crate::core::gmm::estep(
-                &x[3 * m * t..3 * m * (t + 1)],
-                &v[3 * offsets[t]..3 * offsets[t + 1]],
-                tau[t],
-                omega,
-                cutoff,
-                precision,
-            )
+            let (xs, vs) = (
+                3 * m * t..3 * m * (t + 1),
+                3 * offsets[t]..3 * offsets[t + 1],
+            );
+            match normals {
+                Some((xn, vn, kappa)) => crate::core::gmm::estep_normals(
+                    &x[xs.clone()],
+                    &v[vs.clone()],
+                    None,
+                    crate::core::gmm::Normals {
+                        y: &xn[xs],
+                        x: &vn[vs],
+                        kappa,
+                    },
+                    tau[t],
+                    omega,
+                    cutoff,
+                    precision,
+                ),
+                None => crate::core::gmm::estep(&x[xs], &v[vs], tau[t], omega, cutoff, precision),
+            }
         })
         .collect();
     let mut out = FramesEStep {

@@ -312,7 +312,7 @@ type FramesOut<'py> = (
 
 /// Truncated E-step of every frame in one call, parallel over frames (see `_core.pyi`).
 #[pyfunction]
-#[pyo3(signature = (x, v, offsets, tau, omega, cutoff=None, single=false))]
+#[pyo3(signature = (x, v, offsets, tau, omega, cutoff=None, single=false, xn=None, vn=None, kappa=0.0))]
 #[allow(clippy::too_many_arguments)]
 fn lbs_estep_frames<'py>(
     py: Python<'py>,
@@ -323,9 +323,18 @@ fn lbs_estep_frames<'py>(
     omega: f64,
     cutoff: Option<f64>,
     single: bool,
+    xn: Option<PyReadonlyArray2<'py, f64>>,
+    vn: Option<PyReadonlyArray2<'py, f64>>,
+    kappa: f64,
 ) -> PyResult<FramesOut<'py>> {
     let xs = points(py, &x, "x")?;
     let vs = points(py, &v, "v")?;
+    let normals = match (&xn, &vn) {
+        (Some(a), Some(b)) if kappa > 0.0 => {
+            Some((points(py, a, "xn")?, points(py, b, "vn")?, kappa))
+        }
+        _ => None,
+    };
     let taus = flat1(py, &tau, "tau")?;
     let offs = offsets
         .c_slice("offsets")?
@@ -340,7 +349,7 @@ fn lbs_estep_frames<'py>(
         crate::core::gmm::Precision::Double
     };
     let r = py
-        .detach(|| lbs::estep_frames(xs, vs, &offs, taus, omega, cutoff, prec))
+        .detach(|| lbs::estep_frames(xs, vs, &offs, taus, omega, cutoff, prec, normals))
         .map_err(|e| to_pyerr(py, e))?;
     let f = taus.len();
     let m = r.p1.len() / f.max(1);
