@@ -42,13 +42,12 @@ from pathlib import Path
 from typing import Any, Callable, Protocol, Sequence
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from . import _core
 from .config import JointsConfig
 from .errors import ConfigError, InputError
 from .kinematics import joint_trajectories, solve_joint_positions
-from .preprocess import chamfer_misfit, estimate_normals
+from .preprocess import chamfer_misfit, estimate_normals, mean_spacing
 from .view import view_depth_correct
 
 __all__ = ["JointsResult", "StructureLike", "learn_joints", "e_step", "e_step_numpy",
@@ -521,6 +520,8 @@ def track_bones(
         Rf, Tf = _flat_rt(Rb[None], Tb[None])
         return _core.lbs_skin(Q, idx, w, Rf, Tf, 1).reshape(M, 3)
 
+    from scipy.spatial import cKDTree
+
     use_normals = normals is not None and config.track_normal_kappa > 0
 
     def fit_frame(v: np.ndarray, packed: tuple[np.ndarray, np.ndarray], tree: Any,
@@ -773,7 +774,7 @@ def learn_joints(
         t_tr = time.perf_counter()
         track_normals = None
         if cfg.track_normal_kappa > 0:
-            radius = cfg.normal_radius * float(np.mean(cKDTree(Q).query(Q, k=2)[0][:, 1]))
+            radius = cfg.normal_radius * mean_spacing(Q)
             track_normals = (
                 estimate_normals(Q, radius, source=frames[int(rest_index)]),
                 [estimate_normals(o, radius, source=v) for o, v in zip(obs_all, frames)],

@@ -489,7 +489,18 @@ def connected_pieces_exact(points: np.ndarray, radius: float) -> np.ndarray:
 
 def median_spacing(points: np.ndarray) -> float:
     """Median nearest-neighbour distance of ``points (N, 3)``, metres."""
-    return float(np.median(cKDTree(points).query(points, k=2)[0][:, 1]))
+    return float(np.median(_nn_distances(points)))
+
+
+def mean_spacing(points: np.ndarray) -> float:
+    """Mean nearest-neighbour distance of ``points (N, 3)``, metres (the rest points' spacing
+    that the registration's and the tracker's length scales refer to)."""
+    return float(np.mean(_nn_distances(points)))
+
+
+def _nn_distances(points: np.ndarray) -> np.ndarray:
+    """Distance of each of ``points (N, 3)`` to its nearest other point, ``(N,)`` metres."""
+    return cKDTree(points).query(points, k=2)[0][:, 1]
 
 
 def _keep_near_largest(points: np.ndarray, radius: float, reach: float,

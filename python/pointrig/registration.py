@@ -31,7 +31,13 @@ from . import _core
 from .config import RegistrationConfig
 from .errors import ConfigError, FormatError
 from .io import write_npz
-from .preprocess import chamfer_misfit, estimate_normals, farthest_point_sampling, rest_surface
+from .preprocess import (
+    chamfer_misfit,
+    estimate_normals,
+    farthest_point_sampling,
+    mean_spacing,
+    rest_surface,
+)
 from .sequence import PointSequence
 
 __all__ = [
@@ -370,7 +376,7 @@ def register_sequence(
     graph = build_graph(rest, config)
     # mean nearest-neighbour distance of the rest points: the length scale of the
     # template's resolution, for the options measured against it
-    spacing = float(np.mean(cKDTree(rest).query(rest, k=2)[0][:, 1]))
+    spacing = mean_spacing(rest)
     normal_radius = config.normal_radius * spacing
     if config.normal_kappa > 0:
         graph.normals = estimate_normals(rest, normal_radius, source=seq.frames[rf])
