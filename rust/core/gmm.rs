@@ -794,13 +794,14 @@ fn chunks<T: Real, const NRM: bool>(
 ) -> (Vec<Partial<T>>, Vec<usize>) {
     let n = xc.len() / 3;
     let cl = chunk_len(n);
-    let nrm = |ci: usize, len: usize| -> &[f64] {
+    // the normals of chunk `ci` (`len` points) of `v` (empty without normals)
+    fn nrm<const NRM: bool>(v: &[f64], ci: usize, cl: usize, len: usize) -> &[f64] {
         if NRM {
-            &xn[3 * ci * cl..3 * (ci * cl + len)]
+            &v[3 * ci * cl..3 * (ci * cl + len)]
         } else {
             &[]
         }
-    };
+    }
     match grid {
         None => {
             let parts = xc
@@ -809,7 +810,7 @@ fn chunks<T: Real, const NRM: bool>(
                 .map(|(ci, xs)| {
                     let len = xs.len() / 3;
                     let ws = wx.map(|w| &w[ci * cl..ci * cl + len]);
-                    dense_dispatch::<T, NRM>(tpl, xs, nrm(ci, len), ws, inv2s, c0)
+                    dense_dispatch::<T, NRM>(tpl, xs, nrm::<NRM>(xn, ci, cl, len), ws, inv2s, c0)
                 })
                 .collect();
             (parts, Vec::new())
@@ -841,11 +842,7 @@ fn chunks<T: Real, const NRM: bool>(
                 .map(|(ci, (xs, ks))| {
                     let len = xs.len() / 3;
                     let ws = ws_sorted.as_ref().map(|w| &w[ci * cl..ci * cl + len]);
-                    let xn = if NRM {
-                        &xn_sorted[3 * ci * cl..3 * (ci * cl + len)]
-                    } else {
-                        &[]
-                    };
+                    let xn = nrm::<NRM>(&xn_sorted, ci, cl, len);
                     truncated_dispatch::<T, NRM>(tpl, g, xs, xn, ks, ws, inv2s, c0, *radius, *eps)
                 })
                 .collect();
@@ -931,27 +928,25 @@ fn run<T: Real>(
         None => (0..m).collect(),
     };
     let yn: &[f64] = normals.map_or(&[], |nr| nr.y);
-    let scaled = |k: usize, a: usize| T::from_f64(s_n * yn[3 * k + a]);
     let has_n = normals.is_some();
+    // coordinate `a` of the scaled template normals in accumulator order (empty without)
+    let ncol = |a: usize| -> Vec<T> {
+        if has_n {
+            order
+                .iter()
+                .map(|&k| T::from_f64(s_n * yn[3 * k + a]))
+                .collect()
+        } else {
+            Vec::new()
+        }
+    };
     let tpl = Template {
         yx: order.iter().map(|&k| T::from_f64(yc[3 * k])).collect(),
         yy: order.iter().map(|&k| T::from_f64(yc[3 * k + 1])).collect(),
         yz: order.iter().map(|&k| T::from_f64(yc[3 * k + 2])).collect(),
-        nx: order
-            .iter()
-            .filter(|_| has_n)
-            .map(|&k| scaled(k, 0))
-            .collect(),
-        ny: order
-            .iter()
-            .filter(|_| has_n)
-            .map(|&k| scaled(k, 1))
-            .collect(),
-        nz: order
-            .iter()
-            .filter(|_| has_n)
-            .map(|&k| scaled(k, 2))
-            .collect(),
+        nx: ncol(0),
+        ny: ncol(1),
+        nz: ncol(2),
     };
     let xn: Vec<f64> = normals.map_or(Vec::new(), |nr| nr.x.iter().map(|v| s_n * v).collect());
 

@@ -276,27 +276,14 @@ pub fn surface_normals(
             let m = s / wsum;
             let cov = ss / wsum - m * m.transpose();
             let eig = SymmetricEigen::new(cov);
-            let (mut lo, mut second) = (0, 1);
-            for a in 0..3 {
-                if eig.eigenvalues[a] < eig.eigenvalues[lo] {
-                    lo = a;
-                }
-            }
-            for a in 0..3 {
-                if a != lo && (second == lo || eig.eigenvalues[a] < eig.eigenvalues[second]) {
-                    second = a;
-                }
-            }
-            // collinear neighbours (a line of points): no plane
-            if eig.eigenvalues[second].is_nan() || eig.eigenvalues[second] <= 0.0 {
+            // eigenvalues in increasing order: the plane's normal is the first axis
+            let mut ix = [0, 1, 2];
+            ix.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
+            // collinear neighbours (a line of points) span no plane
+            if eig.eigenvalues[ix[1]].is_nan() || eig.eigenvalues[ix[1]] <= 0.0 {
                 return [0.0; 3];
             }
-            let mut v = eig.eigenvectors.column(lo).into_owned();
-            let l = v.norm();
-            if l.is_nan() || l <= 0.0 {
-                return [0.0; 3];
-            }
-            v /= l;
+            let mut v = eig.eigenvectors.column(ix[0]).normalize();
             let to_cam = Vector3::new(camera[0] - q[0], camera[1] - q[1], camera[2] - q[2]);
             if v.dot(&to_cam) < 0.0 {
                 v = -v;

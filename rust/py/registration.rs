@@ -20,12 +20,12 @@ use crate::core::deform::{self, DataTerm, FrameParams, Graph, NodeState, Solver,
 use crate::core::error::check_finite;
 use crate::core::gmm::{self, Precision};
 
-fn read_state(
+/// Node rotations `R (J, 3, 3)`, checked for shape and finiteness.
+fn read_rotations(
     py: Python<'_>,
     r: &PyReadonlyArray3<'_, f64>,
-    t: &PyReadonlyArray2<'_, f64>,
     j: usize,
-) -> PyResult<NodeState> {
+) -> PyResult<Vec<Matrix3<f64>>> {
     let rs = r.shape();
     if rs[0] != j || rs[1] != 3 || rs[2] != 3 {
         return Err(PyValueError::new_err(format!(
@@ -34,12 +34,22 @@ fn read_state(
     }
     let rsl = r.c_slice("R")?;
     check_finite("R", rsl).map_err(|e| to_pyerr(py, e))?;
+    Ok(rsl.chunks_exact(9).map(Matrix3::from_row_slice).collect())
+}
+
+fn read_state(
+    py: Python<'_>,
+    r: &PyReadonlyArray3<'_, f64>,
+    t: &PyReadonlyArray2<'_, f64>,
+    j: usize,
+) -> PyResult<NodeState> {
+    let rot = read_rotations(py, r, j)?;
     let tsl = points(py, t, "T")?;
     if tsl.len() != 3 * j {
         return Err(PyValueError::new_err(format!("T must have shape ({j}, 3)")));
     }
     Ok(NodeState {
-        r: rsl.chunks_exact(9).map(Matrix3::from_row_slice).collect(),
+        r: rot,
         t: tsl
             .chunks_exact(3)
             .map(|c| Vector3::new(c[0], c[1], c[2]))
@@ -141,8 +151,10 @@ impl DeformGraph {
             ));
         }
         let j = self.g.n_nodes();
-        let t = numpy::PyArray2::<f64>::zeros(py, [j, 3], false);
-        let st = read_state(py, &r, &t.readonly(), j)?;
+        let st = NodeState {
+            r: read_rotations(py, &r, j)?,
+            t: vec![Vector3::zeros(); j],
+        };
         let y = py.detach(|| self.g.deform_normals(&st));
         vec_points(py, &y)
     }
