@@ -462,3 +462,79 @@ def test_bad_ensemble_parameters_raise(field, value):
     d = make_sequence("arm", n_points=200, n_frames=4, noise=0.0)
     with pytest.raises(ConfigError, match=field):
         extract_structure(d["rest"], d["points"], StructureConfig(**{field: value}))
+
+
+def _arm_beside_torso(n_frames: int = 16):
+    """A vertical torso plate A (static), an arm plate C hanging beside its right edge (1 cm grid) and
+    swinging about the shoulder pivot at its top (up to 25 deg), and a piece B of the torso's
+    lower right corner that turns about the same pivot by half the arm's angle (a skin-blend
+    patch, as registration leaves on smoothly skinned rigs). C touches A along its upper half
+    and B along its lower half. Returns Q, Y, labels, R, T (exact ``T_frame_rest``)."""
+    xs, ys = np.meshgrid(np.arange(0.0, 0.30, 0.01), np.arange(0.0, 0.50, 0.01))
+    torso = np.c_[xs.ravel(), ys.ravel(), np.zeros(xs.size)]
+    xs, ys = np.meshgrid(np.arange(0.30, 0.36, 0.01), np.arange(0.0, 0.48, 0.01))
+    arm = np.c_[xs.ravel(), ys.ravel(), np.zeros(xs.size)]
+    Q = np.vstack([torso, arm])
+    labels = np.r_[np.zeros(len(torso), np.int64), np.full(len(arm), 2)]
+    labels[: len(torso)][(torso[:, 0] >= 0.22) & (torso[:, 1] <= 0.20)] = 1
+    pivot = np.array([0.33, 0.49, 0.0])
+    R = np.zeros((n_frames, 3, 3, 3))
+    T = np.zeros((n_frames, 3, 3))
+    for t in range(n_frames):
+        ang = 25.0 * np.sin(np.pi * t / (n_frames - 1))
+        for b, f in ((0, 0.0), (1, 0.5), (2, 1.0)):
+            R[t, b] = Rotation.from_euler("z", f * ang, degrees=True).as_matrix()
+            T[t, b] = pivot - R[t, b] @ pivot
+    Y = np.ascontiguousarray(np.einsum("fmij,mj->fmi", R[:, labels], Q) + T[:, labels])
+    return Q, Y, labels, R, T
+
+
+def test_edge_dislocations_match_a_numpy_least_squares_oracle():
+    from scipy.spatial import cKDTree
+
+    from pointrig.structure import _Ctx, _edge_dislocations
+
+    Q, Y, labels, R, T = _arm_beside_torso()
+    cfg = StructureConfig(neighbor_stretch=0.0)
+    ctx = _Ctx(Q, Y, cfg)
+    pairs = [(0, 1), (0, 2), (1, 2)]
+    got = _edge_dislocations(ctx, labels, R, T, pairs)
+    # oracle: contact band from a k-d tree ball, then the ridge least squares stacked for lstsq
+    dist, idx = cKDTree(Q).query(Q, k=cfg.vote_neighbors + 1)
+    radius = cfg.vote_radius_ratio * np.median(dist[:, -1])
+    F = R.shape[0]
+    for (i, j), g in zip(pairs, got):
+        nb_lab = np.where(dist[:, 1:] <= radius, labels[idx[:, 1:]], -1)
+        band = ((labels == i) & (nb_lab == j).any(1)) | ((labels == j) & (nb_lab == i).any(1))
+        c0 = Q[band].mean(0)
+        A = R[:, i] - R[:, j]
+        b = T[:, i] - T[:, j]
+        lam = cfg.edge_joint_prior * F * (A ** 2).sum(axis=(1, 2)).mean() / 3.0 + 1e-12
+        M = np.vstack([A.reshape(-1, 3), np.sqrt(lam) * np.eye(3)])
+        rhs = np.r_[-b.ravel(), np.sqrt(lam) * c0]
+        c = np.linalg.lstsq(M, rhs, rcond=None)[0]
+        ref = np.sqrt((((A @ c) + b) ** 2).sum(1).mean())
+        assert g == pytest.approx(ref, rel=1e-9, abs=1e-12)
+    # all three turn about one pivot; it lies nearest the arm-torso contact
+    assert got[1] < got[0] < got[2]
+
+
+def test_the_arm_hangs_from_the_bone_it_turns_about_not_the_patch_it_lies_on():
+    """Eq. 15 (motion similarity) links the arm to the half-turning patch B beside it; the
+    joint dislocation links it to the torso, about whose shoulder it turns."""
+    from pointrig.structure import _build_tree, _Ctx
+
+    Q, Y, labels, R, T = _arm_beside_torso()
+
+    def arm_parent(edge_weight):
+        cfg = StructureConfig(neighbor_stretch=0.0, edge_weight=edge_weight)
+        parent, root, _ = _build_tree(_Ctx(Q, Y, cfg), labels, 3, R, T, {})
+        assert root == 0  # the largest bone
+        return int(parent[2])
+
+    assert arm_parent("dislocation") == 0
+    assert arm_parent("eq15") == 1  # the paper's weight picks the patch (the test can fail)
+    with pytest.raises(ConfigError, match="edge_joint_prior"):
+        extract_structure(Q, Y, StructureConfig(edge_joint_prior=-1.0))
+    with pytest.raises(ConfigError, match="edge_weight"):
+        StructureConfig(edge_weight="distance")

@@ -224,6 +224,16 @@ class StructureConfig:
     # the gap midpoint with relative weight bridge_joint_prior) + bridge_gap_weight * gap (metres)
     bridge_joint_prior: float = 0.05
     bridge_gap_weight: float = 0.1  # distance is a weak prior: occluded gaps can be wide
+    # weight of the touching edges of the bone graph (the MST picks each bone's parent):
+    # "dislocation" (our deviation, docs/structure.md "Session 24"): how far the two bones come
+    # apart at their best shared joint, RMS_t |(R_i^t - R_j^t) c + T_i^t - T_j^t| with c the
+    # least-squares joint pulled towards the centroid of their contact band with relative
+    # weight edge_joint_prior (as for the bridges); ~0 only for bones that rotate about a
+    # common point near where they touch. "eq15" (the paper): the residual after swapping the
+    # two bones' transforms over all their points, a motion similarity that cannot tell an arm
+    # hanging from its shoulder from the same arm lying against the lower torso
+    edge_weight: str = "dislocation"
+    edge_joint_prior: float = 1.0
 
     # --- refinement (§5.4) ---
     # two bones are one if the merge_percentile-th percentile over frames of the angle of their
@@ -309,7 +319,8 @@ class StructureConfig:
     def __post_init__(self) -> None:
         _check_choices(self, "structure", {
             "merge_rule": ("angle", "both"), "merge_reference": ("range", "rest"),
-            "root_choice": ("largest", "centroid"), "view_depth_method": ("width", "quantile"),
+            "root_choice": ("largest", "centroid"), "edge_weight": ("dislocation", "eq15"),
+            "view_depth_method": ("width", "quantile"),
             "single_view": ("yes", "no", "auto")})
 
 

@@ -15,9 +15,12 @@ every frame) build a bone tree without being told the number of bones:
    size (``merge_rule="both"``: no visible articulation either way) are merged, tiny
    clusters are absorbed, spurious leaves at branching joints are pruned, and bones whose joints
    (Eq. 20) collapse onto one point are removed ("merge joints that are very close").
-3. **Bone graph** (§5.3): bones that touch in the rest pose are linked with the transform-swap
-   weight of Eq. 15 (``_core.swap_residuals``); the minimum spanning tree (networkx) is the
-   skeleton, rooted at the bone whose centre is nearest the rest-pose centroid. A touching graph
+3. **Bone graph** (§5.3): bones that touch in the rest pose are linked, weighted by their joint
+   dislocation (how far the two bones carry their best shared joint near the contact apart;
+   ``edge_weight="eq15"``: the paper's transform-swap weight of Eq. 15,
+   ``_core.swap_residuals``); the minimum spanning tree (networkx) is the skeleton, rooted at
+   the bone with the most points (``root_choice="centroid"``: the paper's bone whose centre is
+   nearest the rest-pose centroid). A touching graph
    that is disconnected (occlusion) is bridged by motion (joint dislocation) plus distance.
    Loops cannot occur: the result is a spanning tree by construction.
 4. **Initial joints**: Eq. 20 in closed form (:func:`pointrig.kinematics.solve_joint_positions`)
@@ -600,9 +603,30 @@ def _dislocation(R: np.ndarray, T: np.ndarray, i: int, j: int, c0: np.ndarray,
     return float(np.sqrt((d ** 2).sum(1).mean()))
 
 
+def _edge_dislocations(ctx: _Ctx, labels: np.ndarray, R: np.ndarray, T: np.ndarray,
+                      pairs: list[tuple[int, int]]) -> np.ndarray:
+    """Bone-graph weights ``edge_weight="dislocation"`` of touching bone pairs, ``(P,)`` metres.
+
+    Each pair's :func:`_dislocation` (RMS over frames of how far the two bones carry their best
+    shared joint apart), with the joint pulled towards the centroid ``c0`` of the pair's contact
+    band (points of either bone with a rest-pose neighbour in the other; the closest pair's
+    midpoint if the band is empty) with relative weight ``edge_joint_prior``. Bones that rotate
+    about a common point near where they touch score ~0; a limb lying against a part it does
+    not hang from scores its swing at the contact.
+    """
+    nl = np.where(ctx.nbr >= 0, labels[np.maximum(ctx.nbr, 0)], -1)
+    out = np.empty(len(pairs))
+    for n, (i, j) in enumerate(pairs):
+        band = ((labels == i) & (nl == j).any(1)) | ((labels == j) & (nl == i).any(1))
+        c0 = ctx.Q[band].mean(0) if band.any() else _closest_pair(ctx, labels, i, j)[1]
+        out[n] = _dislocation(R, T, i, j, c0, ctx.cfg.edge_joint_prior)
+    return out
+
+
 def _build_tree(ctx: _Ctx, labels: np.ndarray, B: int, R: np.ndarray, T: np.ndarray,
                 diag: dict[str, Any]) -> tuple[np.ndarray, int, set[tuple[int, int]]]:
-    """MST of the touching graph with Eq. 15 weights, bridged by motion + distance; rooted at
+    """MST of the touching graph (weights: :func:`_edge_dislocations`, or Eq. 15 with
+    ``edge_weight="eq15"``), bridged by motion + distance; rooted at
     the bone whose centre is nearest the rest-pose centroid (§5.3), or at the bone with the
     most points (``root_choice="largest"``). Returns (parent, root, bridges)."""
     import networkx as nx
@@ -612,7 +636,10 @@ def _build_tree(ctx: _Ctx, labels: np.ndarray, B: int, R: np.ndarray, T: np.ndar
     G = nx.Graph()
     G.add_nodes_from(range(B))
     if touch:
-        w = eq15_weights(ctx.Q, ctx.Y, labels, R, T, np.array(touch))
+        if cfg.edge_weight == "dislocation":
+            w = _edge_dislocations(ctx, labels, R, T, touch)
+        else:
+            w = eq15_weights(ctx.Q, ctx.Y, labels, R, T, np.array(touch))
         for (i, j), wij in zip(touch, w):
             G.add_edge(i, j, weight=float(wij))
     forest = nx.minimum_spanning_tree(G, weight="weight", algorithm="kruskal")
@@ -877,6 +904,9 @@ def _check_inputs(rest_points: np.ndarray, points: np.ndarray, cfg: StructureCon
     if not (cfg.neighbor_stretch == 0 or cfg.neighbor_stretch >= 1):
         raise ConfigError("structure: neighbor_stretch must be 0 (off) or >= 1 "
                           f"(a factor on the ball radius), got {cfg.neighbor_stretch!r}")
+    if not (np.isfinite(cfg.edge_joint_prior) and cfg.edge_joint_prior >= 0):
+        raise ConfigError("structure: edge_joint_prior must be >= 0 (relative weight of the "
+                          f"contact centroid), got {cfg.edge_joint_prior!r}")
     if not (np.isfinite(cfg.invisible_bone_fraction) and cfg.invisible_bone_fraction >= 0):
         raise ConfigError("structure: invisible_bone_fraction must be >= 0 (fraction of the "
                           f"size; 0 = off), got {cfg.invisible_bone_fraction!r}")
