@@ -465,11 +465,12 @@ def test_bad_ensemble_parameters_raise(field, value):
 
 
 def _arm_beside_torso(n_frames: int = 16):
-    """A vertical torso plate A (static), an arm plate C hanging beside its right edge (1 cm grid) and
-    swinging about the shoulder pivot at its top (up to 25 deg), and a piece B of the torso's
-    lower right corner that turns about the same pivot by half the arm's angle (a skin-blend
-    patch, as registration leaves on smoothly skinned rigs). C touches A along its upper half
-    and B along its lower half. Returns Q, Y, labels, R, T (exact ``T_frame_rest``)."""
+    """A vertical torso plate A (static, 1 cm grid), an arm plate C hanging beside its right
+    edge and swinging about the shoulder pivot at its top (up to 25 deg), and a piece B of the
+    torso's lower right corner that turns about the same pivot by half the arm's angle (a
+    skin-blend patch, as registration leaves on smoothly skinned rigs). C touches A along its
+    upper half and B along its lower half. Returns Q, Y, labels, R, T (exact
+    ``T_frame_rest``)."""
     xs, ys = np.meshgrid(np.arange(0.0, 0.30, 0.01), np.arange(0.0, 0.50, 0.01))
     torso = np.c_[xs.ravel(), ys.ravel(), np.zeros(xs.size)]
     xs, ys = np.meshgrid(np.arange(0.30, 0.36, 0.01), np.arange(0.0, 0.48, 0.01))

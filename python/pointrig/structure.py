@@ -371,7 +371,7 @@ def kmeans_features(Q: np.ndarray, Y: np.ndarray, cfg: StructureConfig) -> np.nd
 
 def _candidates(ctx: _Ctx, labels: np.ndarray) -> np.ndarray:
     """Candidate bones per point: own label and labels of rest-pose neighbours, ``(M, C)``."""
-    nl = np.where(ctx.nbr >= 0, labels[np.maximum(ctx.nbr, 0)], -1)
+    nl = _neighbor_labels(ctx, labels)
     cand = np.sort(np.hstack([labels[:, None], nl]), axis=1)
     dup = np.zeros_like(cand, dtype=bool)
     dup[:, 1:] = cand[:, 1:] == cand[:, :-1]
@@ -381,7 +381,7 @@ def _candidates(ctx: _Ctx, labels: np.ndarray) -> np.ndarray:
 
 def _vote(ctx: _Ctx, labels: np.ndarray) -> np.ndarray:
     """Step (iii): majority label in the rest-pose ball (ties keep the current label)."""
-    nl = np.where(ctx.nbr >= 0, labels[np.maximum(ctx.nbr, 0)], -1)
+    nl = _neighbor_labels(ctx, labels)
     allv = np.hstack([labels[:, None], nl])  # (M, 1 + k)
     counts = (allv[:, :, None] == allv[:, None, :]).sum(2).astype(float)
     counts[allv < 0] = -1
@@ -614,13 +614,24 @@ def _edge_dislocations(ctx: _Ctx, labels: np.ndarray, R: np.ndarray, T: np.ndarr
     about a common point near where they touch score ~0; a limb lying against a part it does
     not hang from scores its swing at the contact.
     """
-    nl = np.where(ctx.nbr >= 0, labels[np.maximum(ctx.nbr, 0)], -1)
+    nl = _neighbor_labels(ctx, labels)
     out = np.empty(len(pairs))
     for n, (i, j) in enumerate(pairs):
-        band = ((labels == i) & (nl == j).any(1)) | ((labels == j) & (nl == i).any(1))
+        band = _contact_band(labels, nl, i, j)
         c0 = ctx.Q[band].mean(0) if band.any() else _closest_pair(ctx, labels, i, j)[1]
         out[n] = _dislocation(R, T, i, j, c0, ctx.cfg.edge_joint_prior)
     return out
+
+
+def _neighbor_labels(ctx: _Ctx, labels: np.ndarray) -> np.ndarray:
+    """``(M, k)`` label of each rest point's ball neighbour (``ctx.nbr``), -1 for none."""
+    return np.where(ctx.nbr >= 0, labels[np.maximum(ctx.nbr, 0)], -1)
+
+
+def _contact_band(labels: np.ndarray, nl: np.ndarray, i: int, j: int) -> np.ndarray:
+    """``(M,)`` mask of the points of bones ``i`` and ``j`` with a ball neighbour in the other
+    (``nl`` from :func:`_neighbor_labels`)."""
+    return ((labels == i) & (nl == j).any(1)) | ((labels == j) & (nl == i).any(1))
 
 
 def _build_tree(ctx: _Ctx, labels: np.ndarray, B: int, R: np.ndarray, T: np.ndarray,
@@ -686,15 +697,13 @@ def _boundary_centroids(ctx: _Ctx, labels: np.ndarray, parent: np.ndarray,
     its centre."""
     B = len(parent)
     out = np.empty((B, 3))
-    nl = np.where(ctx.nbr >= 0, labels[np.maximum(ctx.nbr, 0)], -1)
+    nl = _neighbor_labels(ctx, labels)
     for k in range(B):
         p = int(parent[k])
         if p < 0:
             out[k] = ctx.Q[labels == k].mean(0)
             continue
-        on_k = (labels == k) & (nl == p).any(1)
-        on_p = (labels == p) & (nl == k).any(1)
-        sel = on_k | on_p
+        sel = _contact_band(labels, nl, k, p)
         if sel.any():
             out[k] = ctx.Q[sel].mean(0)
             if view_camera is not None:
