@@ -2,7 +2,7 @@
 
 For each sequence of ``bench_registration_downstream.py`` (the ``pointrig.synth`` figures and,
 when present, the glTF rigs of ``../shared/data/models``; 40 frames, seed 0, moderate Kinect
-noise, 2 % outliers) step 2 runs twice:
+noise, 2 % outliers) step 2 runs on two inputs (three with ``--visible``):
 
 * **exact**: 2000 ground-truth surface samples (both sides, no noise) and their exact motion,
   i.e. what step 2 does with a perfect step 1 (``single_view="no"``: no depth correction);
