@@ -15,7 +15,11 @@ noise, 2 % outliers) step 2 runs on two inputs (three with ``--visible``):
 Prints recall / precision / bone count per sequence and mode, then the means (recall,
 precision, normalised error in cm, bones per scorable ground-truth joint) per variant. With
 ``--joints`` step 3 (default :class:`~pointrig.config.JointsConfig`) also runs on each
-registered step-2 result (mode **reg+3**, joints only: the bone count is step 2's).
+registered step-2 result (mode **reg+3**, joints only: the bone count is step 2's); with
+``--joints --refine`` also one round of the refinement from the skeleton (mode **ref+3**: every
+frame registered again from step 3's tracked pose, then steps 2-3 again, as ``extract`` with
+``RegistrationConfig.refine_rounds = 1``; its bone count, and the refined correspondence error
+on the sequence's line).
 Variants are JSON overrides of :class:`~pointrig.config.StructureConfig`::
 
     PYTHONPATH=python python benchmarks/bench_structure_real.py --cache /tmp/reg40 \
@@ -53,8 +57,13 @@ from bench_registration_downstream import FIGURES, score_joints, score_step2  # 
 from pointrig.config import PipelineConfig, StructureConfig  # noqa: E402
 from pointrig.evaluate import SWING_SOURCES  # noqa: E402
 from pointrig.joints import learn_joints  # noqa: E402
-from pointrig.pipeline import build_skeleton  # noqa: E402
-from pointrig.registration import register_sequence  # noqa: E402
+from pointrig.pipeline import build_skeleton, posed_rest_points  # noqa: E402
+from pointrig.registration import (  # noqa: E402
+    RegistrationResult,
+    refine_registration,
+    register_sequence,
+)
+from pointrig.structure import extract_structure  # noqa: E402
 from pointrig.synth import NoiseConfig, synthesize  # noqa: E402
 
 
@@ -88,6 +97,11 @@ WIDE: dict[str, tuple[str, dict]] = {
 _ADDED_LATER = {"normal_kappa": 0.0, "normal_radius": 1.5}
 
 
+def _step1_params(params: dict) -> dict:
+    """The parameters that change step 1's result (``refine_rounds`` acts after step 3)."""
+    return {k: v for k, v in params.items() if k != "refine_rounds"}
+
+
 def _load(fig: str, frames: int, cache: Path | None, registration: dict) -> dict:
     if fig in WIDE:
         src, kw = WIDE[fig]
@@ -104,7 +118,8 @@ def _load(fig: str, frames: int, cache: Path | None, registration: dict) -> dict
                   "registration parameters", file=sys.stderr)
         # a field added after the cache was written holds the value that reproduces the
         # behaviour before it existed
-        elif {**_ADDED_LATER, **d["registration"]} != dataclasses.asdict(config):
+        elif _step1_params({**_ADDED_LATER, **d["registration"]}) != \
+                _step1_params(dataclasses.asdict(config)):
             raise SystemExit(f"{cache / name} was registered with other parameters than "
                              f"the defaults + {registration}: use another --cache")
         return d
@@ -121,6 +136,22 @@ def _load(fig: str, frames: int, cache: Path | None, registration: dict) -> dict
     return d
 
 
+def _refined_run(seq, q, y, rf, st, jr, cfg, joints_cfg, reg_over, syn, swing_source, truth):
+    """One round of the refinement from the skeleton (as ``pointrig.pipeline.extract`` with
+    ``refine_rounds = 1``): every frame registered again from step 3's tracked pose, then
+    steps 2 and 3 again. Returns (score, bones, correspondence error cm)."""
+    reg_cfg = dataclasses.replace(PipelineConfig().registration, **reg_over)
+    reg = RegistrationResult(q, y, np.zeros(len(y)), np.zeros(len(y), dtype=np.int64),
+                             np.zeros(len(y)), {"rest_frame_index": int(rf)})
+    posed = posed_rest_points(q, st.labels, jr.R, jr.T)
+    y2 = refine_registration(seq, reg, posed, reg_cfg).points
+    st2 = extract_structure(q, y2, cfg)
+    jr2 = learn_joints(seq.frames, q, y2, st2, joints_cfg)
+    sk = build_skeleton(q, st2.bone_parent, jr2.joints_rest, jr2.R, jr2.T, jr2.weights, None)
+    corr = 100 * float(np.linalg.norm(y2 - truth, axis=2).mean())
+    return score_joints(sk.joint_positions, syn, swing_source), st2.n_bones, corr
+
+
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("variants", nargs="*", default=["{}"], help="StructureConfig overrides (JSON)")
@@ -135,6 +166,10 @@ def main(argv: list[str]) -> int:
                     "step 3 (with --joints)")
     ap.add_argument("--visible", action="store_true", help="also step 2 on the exact motion "
                     "of the registration's single-view rest points (mode visible)")
+    ap.add_argument("--refine", action="store_true", help="with --joints: also the "
+                    "refinement from the skeleton (RegistrationConfig.refine_rounds = 1: every "
+                    "frame registered again from step 3's tracked pose, then steps 2-3 again; "
+                    "mode ref+3, and its correspondence error)")
     ap.add_argument("--swing-source", default="auto", choices=SWING_SOURCES,
                     help="the scorer's articulation test: the rig's bone transforms (auto) "
                     "or Kabsch fits of the surface parts (the rule before session 21)")
@@ -159,7 +194,8 @@ def main(argv: list[str]) -> int:
         inputs = {"exact": (s[0, idx], s[:, idx]), "reg": (d["rest"], d["pts"])}
         if a.visible:
             inputs["visible"] = (s[rf, nn], s[:, nn])
-        frames = syn.to_point_sequence().frames if a.joints else None
+        seq = syn.to_point_sequence() if a.joints else None
+        frames = seq.frames if seq is not None else None
         line = []
         for v in variants:
             for mode, (q, y) in inputs.items():
@@ -180,6 +216,14 @@ def main(argv: list[str]) -> int:
                         (r3.recall, r3.precision, 100 * r3.normalized_error,
                          st.n_bones / max(r3.n_scorable, 1), 100 * r3.raw_error))
                     line.append(f"reg+3 {r3.recall:.2f}/{r3.precision:.2f}")
+                    if a.refine:
+                        r4, n4, c4 = _refined_run(seq, q, y, rf, st, jr, cfg, joints_cfg,
+                                                  reg_over, syn, a.swing_source, s[:, nn])
+                        rows.setdefault((json.dumps(v), "ref+3"), []).append(
+                            (r4.recall, r4.precision, 100 * r4.normalized_error,
+                             n4 / max(r4.n_scorable, 1), 100 * r4.raw_error))
+                        line.append(f"ref+3 {r4.recall:.2f}/{r4.precision:.2f}/{n4} "
+                                    f"(corr {c4:.2f} cm)")
         print(f"{Path(fig).stem[:15]:<15} scorable {r.n_scorable:2d}  " + " | ".join(line)
               + f" | corr {corr[-1]:.2f} cm", flush=True)
     print(f"\nregistration {json.dumps(reg_over)}: mean correspondence error "
