@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import re
-import shutil
 
 import numpy as np
 import pytest
@@ -127,28 +126,3 @@ def test_every_choice_parameter_is_checked_when_the_config_is_made():
                     continue
                 with pytest.raises(ConfigError, match=rf"{name} must be"):
                     cls(**{name: bad})
-
-
-def test_refinement_round_reuses_the_checkpoint_and_stays_accurate(demo_run, tmp_path, capsys):
-    """``[registration] refine_rounds = 1`` (docs/registration.md "Session 26"): the step-1
-    checkpoint is reused (refine_rounds is not in its key), every frame is registered again
-    from the skeleton's pose, steps 2-3 rerun on it, the summary reports the refinement time,
-    the parameters are recorded, and the result is as accurate as the single pass's bound."""
-    cfg = tmp_path / "refine.toml"
-    cfg.write_text("[registration]\nrefine_rounds = 1\n")
-    before = (demo_run / "registration.npz").stat().st_mtime_ns
-    out = tmp_path / "out"
-    out.mkdir()
-    shutil.copy(demo_run / "registration.npz", out / "registration.npz")
-    code = main(["extract", str(demo_path() / "frames"), "-o", str(out), "-q",
-                 "--no-pictures", "--config", str(cfg)])
-    assert code == 0
-    line = capsys.readouterr().out
-    assert "registration reused" in line and "refinement" in line
-    assert (demo_run / "registration.npz").stat().st_mtime_ns == before
-    doc = json.loads((out / "skeleton.json").read_text())
-    assert doc["params"]["registration"]["refine_rounds"] == 1
-    assert doc["params"]["timings_s"]["refinement"] > 0
-    rep = evaluate_files(out / "skeleton.json", demo_path() / "gt.npz")
-    assert rep.recall >= 0.8, rep.format_table()
-    assert rep.normalized_error <= 0.04, rep.format_table()
