@@ -37,7 +37,6 @@ __version__: str = _core.__version__
 _LAZY = {
     "RegistrationResult": "registration",
     "register_sequence": "registration",
-    "refine_registration": "registration",
     "StructureResult": "structure",
     "extract_structure": "structure",
     "JointsResult": "joints",
@@ -77,7 +76,6 @@ __all__ = [
     "load_config",
     "load_skeleton_json",
     "read_sequence",
-    "refine_registration",
     "register_sequence",
     "write_sequence",
 ]

@@ -146,15 +146,6 @@ class RegistrationConfig:
     sor_neighbors: int = 20  # rest surface: statistical outlier removal, k
     sor_std_ratio: float = 2.0  # rest surface: keep mean k-NN distance < mean + ratio * std
     mls_neighbors: int = 16  # rest surface: MLS (local plane) projection neighbours (0 = off)
-    # refinement from the skeleton (option, docs/registration.md "Session 26"): after step 3,
-    # every frame is registered again on its own, starting from the rest points posed by step
-    # 3's tracked skeleton (no frame-to-frame chain), and steps 2-3 run again on that
-    # registration; this many rounds. 0 (default) = one pass, as the paper. 1 lowers the
-    # correspondence error 4.15 -> 3.27 cm on 25 sequences and helps rigid-ish subjects
-    # (procedural figures, 100-frame human normalised 5.08 -> 4.00 cm) but not the artist
-    # rigs (glTF normalised 3.62 -> 3.91 cm), at about twice the run time. Not part of the
-    # step-1 checkpoint key: changing it reuses registration.npz
-    refine_rounds: int = 0
 
     def __post_init__(self) -> None:
         _check_choices(self, "registration", {
@@ -177,7 +168,6 @@ class RegistrationConfig:
             sigma2_anneal=1.0,
             node_geodesic_ratio=0.0,
             normal_kappa=0.0,
-            refine_rounds=0,
         )
         base.update(overrides)
         return cls(**base)
