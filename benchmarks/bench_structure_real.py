@@ -26,6 +26,7 @@ Variants are JSON overrides of :class:`~pointrig.config.StructureConfig`::
         '{}' '{"band_ratio": 0.5}'
 
 ``--wide`` adds 16 sequences (:data:`WIDE`: other seeds, glTF clips, start times, yaw, a walk).
+``--only human,girl_run_s05`` runs only the named sequences (add ``--wide`` for the WIDE ones).
 ``--swing-source surface`` scores with the articulation test before session 21 (Kabsch fits
 of the surface parts instead of the rig's bone transforms).
 ``--registration JSON`` registers with :class:`~pointrig.config.RegistrationConfig` overrides
@@ -165,6 +166,9 @@ def main(argv: list[str]) -> int:
                     "refinement from the skeleton (every frame registered again from step 3's "
                     "tracked pose, then steps 2-3 again; mode ref+3, and its correspondence "
                     "error)")
+    ap.add_argument("--only", default="", help="comma-separated sequence names (e.g. "
+                    "human,girl_run_s05): run only these, for a quick look; means over a "
+                    "subset are not comparable with the 25-sequence table")
     ap.add_argument("--swing-source", default="auto", choices=SWING_SOURCES,
                     help="the scorer's articulation test: the rig's bone transforms (auto) "
                     "or Kabsch fits of the surface parts (the rule before session 21)")
@@ -174,7 +178,14 @@ def main(argv: list[str]) -> int:
     variants = [json.loads(v) for v in a.variants]
     rows: dict[tuple[str, str], list[tuple[float, ...]]] = {}
     corr: list[float] = []
+    only = {n for n in a.only.split(",") if n}
+    names = [Path(f).stem for f in FIGURES + list(WIDE)]
+    if only - set(names):
+        ap.error(f"--only: unknown sequence(s) {', '.join(sorted(only - set(names)))}; "
+                 f"known: {', '.join(names)}")
     for fig in FIGURES + (list(WIDE) if a.wide else []):
+        if only and Path(fig).stem not in only:
+            continue
         d = _load(fig, a.frames, a.cache, reg_over)
         if not d:
             continue
