@@ -468,9 +468,9 @@ def test_refinement_pulls_a_displaced_pose_back_onto_the_data() -> None:
     """refine_registration starts each frame from the posed template and fits it to that
     frame alone: a pose off by a 2.2 cm shift across the arm and a 4 degree turn in its
     plane in every frame (the rest frame kept) comes back to within 40 % of that error
-    (under 1 cm) of the true correspondences (oracle: the capsules' material points). (Twist about the capsules' axis
-    and slide along it are left out: a cylinder's surface does not show them.) A posed array
-    of the wrong shape is an InputError."""
+    (under 1 cm) of the true correspondences (oracle: the capsules' material points). Twist
+    about the capsules' axis and slide along it are left out: a cylinder's surface does not
+    show them. A posed array of the wrong shape is an InputError."""
     from pointrig.errors import InputError
     from pointrig.registration import refine_registration
 

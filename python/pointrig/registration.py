@@ -366,7 +366,6 @@ def register_sequence(
             "sequence spans %.0f units: parameters assume metres (Table 1); scale the input",
             np.linalg.norm(hi - lo),
         )
-    kw = _frame_kwargs(config)
     rest = rest_surface(
         seq.frames[rf],
         config.n_rest_points,
@@ -375,19 +374,9 @@ def register_sequence(
         mls_neighbors=config.mls_neighbors,
         seed=config.seed,
     )
-    graph = build_graph(rest, config)
-    # mean nearest-neighbour distance of the rest points: the length scale of the
-    # template's resolution, for the options measured against it
-    spacing = mean_spacing(rest)
-    normal_radius = config.normal_radius * spacing
-    if config.normal_kappa > 0:
-        graph.normals = estimate_normals(rest, normal_radius, source=seq.frames[rf])
-        kw["kappa"] = config.normal_kappa
-    g = graph.native()
+    graph, g, kw, normal_radius = _frame_setup(rest, seq.frames[rf], config)
     j = len(graph.nodes)
     m = len(rest)
-    if config.density_voxel > 0:
-        kw["voxel_min"] = config.density_voxel * spacing
 
     points = np.zeros((f, m, 3))
     sigma2 = np.zeros(f)
@@ -458,6 +447,25 @@ def register_sequence(
         matched=matched,
         key=cache_key(seq, config),
     )
+
+
+def _frame_setup(rest: np.ndarray, rest_frame: np.ndarray, config: RegistrationConfig
+                 ) -> tuple[DeformationGraph, Any, dict[str, Any], float]:
+    """The deformation graph of the rest points (with their normals when ``normal_kappa >
+    0``, estimated on the rest frame's points), its native form, the keyword arguments of
+    ``register_frame`` but the per-frame data normals, and the normal radius (metres)."""
+    kw = _frame_kwargs(config)
+    graph = build_graph(rest, config)
+    # mean nearest-neighbour distance of the rest points: the length scale of the
+    # template's resolution, for the options measured against it
+    spacing = mean_spacing(rest)
+    normal_radius = config.normal_radius * spacing
+    if config.normal_kappa > 0:
+        graph.normals = estimate_normals(rest, normal_radius, source=rest_frame)
+        kw["kappa"] = config.normal_kappa
+    if config.density_voxel > 0:
+        kw["voxel_min"] = config.density_voxel * spacing
+    return graph, graph.native(), kw, normal_radius
 
 
 def _register_one(g, x, r_init, t_init, config, kw, sigma2_start=None, extra_rigid=0):
@@ -567,13 +575,7 @@ def refine_registration(
         raise InputError(f"refine_registration: posed points must be finite ({f}, {m}, 3), "
                          f"got {posed.shape}")
     rf = int(reg.params.get("rest_frame_index", resolve_rest_frame(config, f)))
-    kw = _frame_kwargs(config)
-    graph = build_graph(rest, config)
-    normal_radius = config.normal_radius * mean_spacing(rest)
-    if config.normal_kappa > 0:
-        graph.normals = estimate_normals(rest, normal_radius, source=seq.frames[rf])
-        kw["kappa"] = config.normal_kappa
-    g = graph.native()
+    graph, g, kw, normal_radius = _frame_setup(rest, seq.frames[rf], config)
     points = posed.copy()
     sigma2 = np.zeros(f)
     iters = np.zeros(f, dtype=np.int64)
