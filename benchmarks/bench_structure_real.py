@@ -15,11 +15,11 @@ noise, 2 % outliers) step 2 runs on two inputs (three with ``--visible``):
 Prints recall / precision / bone count per sequence and mode, then the means (recall,
 precision, normalised error in cm, bones per scorable ground-truth joint) per variant. With
 ``--joints`` step 3 (default :class:`~pointrig.config.JointsConfig`) also runs on each
-registered step-2 result (mode **reg+3**, joints only: the bone count is step 2's); with
-``--joints --refine`` also one round of the refinement from the skeleton (mode **ref+3**: every
-frame registered again from step 3's tracked pose with
-:func:`pointrig.registration.refine_registration`, then steps 2-3 again; its bone count, and
-the refined correspondence error on the sequence's line; docs/registration.md "Session 26").
+registered step-2 result (mode **reg+3**: the single pass, ``refine_rounds = 0``; joints
+only, the bone count is step 2's); with ``--joints --refine`` also one round of the refinement
+from the skeleton (mode **ref+3**: every frame registered again from step 3's tracked pose,
+then steps 2-3 again, as ``extract`` does by default, ``RegistrationConfig.refine_rounds =
+1``; its bone count, and the refined correspondence error on the sequence's line).
 Variants are JSON overrides of :class:`~pointrig.config.StructureConfig`::
 
     PYTHONPATH=python python benchmarks/bench_structure_real.py --cache /tmp/reg40 \
@@ -58,7 +58,7 @@ from bench_registration_downstream import FIGURES, score_joints, score_step2  # 
 from pointrig.config import PipelineConfig, StructureConfig  # noqa: E402
 from pointrig.evaluate import SWING_SOURCES  # noqa: E402
 from pointrig.joints import learn_joints  # noqa: E402
-from pointrig.pipeline import build_skeleton  # noqa: E402
+from pointrig.pipeline import build_skeleton, posed_rest_points  # noqa: E402
 from pointrig.registration import (  # noqa: E402
     RegistrationResult,
     refine_registration,
@@ -98,6 +98,11 @@ WIDE: dict[str, tuple[str, dict]] = {
 _ADDED_LATER = {"normal_kappa": 0.0, "normal_radius": 1.5}
 
 
+def _step1_params(params: dict) -> dict:
+    """The parameters that change step 1's result (``refine_rounds`` acts after step 3)."""
+    return {k: v for k, v in params.items() if k != "refine_rounds"}
+
+
 def _load(fig: str, frames: int, cache: Path | None, registration: dict) -> dict:
     if fig in WIDE:
         src, kw = WIDE[fig]
@@ -114,7 +119,8 @@ def _load(fig: str, frames: int, cache: Path | None, registration: dict) -> dict
                   "registration parameters", file=sys.stderr)
         # a field added after the cache was written holds the value that reproduces the
         # behaviour before it existed
-        elif {**_ADDED_LATER, **d["registration"]} != dataclasses.asdict(config):
+        elif _step1_params({**_ADDED_LATER, **d["registration"]}) != \
+                _step1_params(dataclasses.asdict(config)):
             raise SystemExit(f"{cache / name} was registered with other parameters than "
                              f"the defaults + {registration}: use another --cache")
         return d
@@ -132,14 +138,13 @@ def _load(fig: str, frames: int, cache: Path | None, registration: dict) -> dict
 
 
 def _refined_run(seq, q, y, rf, st, jr, cfg, joints_cfg, reg_over, syn, swing_source, truth):
-    """One round of the refinement from the skeleton (docs/registration.md "Session 26";
-    measured, not in the pipeline): every frame registered again from step 3's tracked pose
-    (the rest points carried by their step-2 bones), then steps 2 and 3 again. Returns
-    (score, bones, correspondence error cm)."""
+    """One round of the refinement from the skeleton (as ``pointrig.pipeline.extract`` with
+    ``refine_rounds = 1``): every frame registered again from step 3's tracked pose, then
+    steps 2 and 3 again. Returns (score, bones, correspondence error cm)."""
     reg_cfg = dataclasses.replace(PipelineConfig().registration, **reg_over)
     reg = RegistrationResult(q, y, np.zeros(len(y)), np.zeros(len(y), dtype=np.int64),
                              np.zeros(len(y)), {"rest_frame_index": int(rf)})
-    posed = np.einsum("fmab,mb->fma", jr.R[:, st.labels], q) + jr.T[:, st.labels]
+    posed = posed_rest_points(q, st.labels, jr.R, jr.T)
     y2 = refine_registration(seq, reg, posed, reg_cfg).points
     st2 = extract_structure(q, y2, cfg)
     jr2 = learn_joints(seq.frames, q, y2, st2, joints_cfg)
@@ -163,9 +168,9 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--visible", action="store_true", help="also step 2 on the exact motion "
                     "of the registration's single-view rest points (mode visible)")
     ap.add_argument("--refine", action="store_true", help="with --joints: also the "
-                    "refinement from the skeleton (every frame registered again from step 3's "
-                    "tracked pose, then steps 2-3 again; mode ref+3, and its correspondence "
-                    "error)")
+                    "refinement from the skeleton (RegistrationConfig.refine_rounds = 1: every "
+                    "frame registered again from step 3's tracked pose, then steps 2-3 again; "
+                    "mode ref+3, and its correspondence error)")
     ap.add_argument("--only", default="", help="comma-separated sequence names (e.g. "
                     "human,girl_run_s05): run only these, for a quick look; means over a "
                     "subset are not comparable with the 25-sequence table")

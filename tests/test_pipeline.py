@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import re
+import shutil
 
 import numpy as np
 import pytest
@@ -126,3 +127,33 @@ def test_every_choice_parameter_is_checked_when_the_config_is_made():
                     continue
                 with pytest.raises(ConfigError, match=rf"{name} must be"):
                     cls(**{name: bad})
+
+
+def test_refinement_is_on_by_default_and_off_reuses_the_checkpoint(demo_run, tmp_path,
+                                                                     capsys):
+    """The default run refines once (``[registration] refine_rounds = 1``, docs/registration.md
+    "Session 26": every frame registered again from the skeleton's pose, steps 2-3 rerun) and
+    records its time; ``refine_rounds = 0`` (the paper's single pass) reuses the same step-1
+    checkpoint (refine_rounds is not in its key), reports no refinement and keeps the
+    accuracy bound."""
+    doc = json.loads((demo_run / "skeleton.json").read_text())
+    assert doc["params"]["registration"]["refine_rounds"] == 1
+    assert doc["params"]["timings_s"]["refinement"] > 0
+    cfg = tmp_path / "single.toml"
+    cfg.write_text("[registration]\nrefine_rounds = 0\n")
+    out = tmp_path / "out"
+    out.mkdir()
+    shutil.copy(demo_run / "registration.npz", out / "registration.npz")
+    before = (out / "registration.npz").stat().st_mtime_ns
+    code = main(["extract", str(demo_path() / "frames"), "-o", str(out), "-q",
+                 "--no-pictures", "--config", str(cfg)])
+    assert code == 0
+    line = capsys.readouterr().out.split(" -> ")[0]  # the timings, not the output path
+    assert "registration reused" in line and "refinement" not in line
+    assert (out / "registration.npz").stat().st_mtime_ns == before
+    doc = json.loads((out / "skeleton.json").read_text())
+    assert doc["params"]["registration"]["refine_rounds"] == 0
+    assert "refinement" not in doc["params"]["timings_s"]
+    rep = evaluate_files(out / "skeleton.json", demo_path() / "gt.npz")
+    assert rep.recall >= 0.8, rep.format_table()
+    assert rep.normalized_error <= 0.04, rep.format_table()

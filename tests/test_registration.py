@@ -497,3 +497,15 @@ def test_refinement_pulls_a_displaced_pose_back_onto_the_data() -> None:
     np.testing.assert_array_equal(ref.rest_points, res.rest_points)
     with pytest.raises(InputError, match="posed"):
         refine_registration(seq, res, posed[:, :-1], cfg)
+
+
+def test_refine_rounds_is_validated_and_not_in_the_checkpoint_key() -> None:
+    frames, _ = capsule_arm(3, 8.0, n=2000)
+    seq = PointSequence(frames)
+    assert cache_key(seq, _clean_cfg(refine_rounds=0)) == cache_key(seq, _clean_cfg(
+        refine_rounds=3))
+    assert cache_key(seq, _clean_cfg()) != cache_key(seq, _clean_cfg(omega=0.02))
+    for bad in (-1, 1.5, True):
+        with pytest.raises(ConfigError, match="refine_rounds"):
+            register_sequence(seq, _clean_cfg(refine_rounds=bad))
+    assert RegistrationConfig.paper().refine_rounds == 0

@@ -37,6 +37,7 @@ __version__: str = _core.__version__
 _LAZY = {
     "RegistrationResult": "registration",
     "register_sequence": "registration",
+    "refine_registration": "registration",
     "StructureResult": "structure",
     "extract_structure": "structure",
     "JointsResult": "joints",
@@ -76,6 +77,7 @@ __all__ = [
     "load_config",
     "load_skeleton_json",
     "read_sequence",
+    "refine_registration",
     "register_sequence",
     "write_sequence",
 ]

@@ -30,7 +30,7 @@ from .kinematics import joint_trajectories
 from .sequence import PointSequence, check_units
 from .skeleton import Skeleton
 
-__all__ = ["ExtractResult", "extract", "build_skeleton"]
+__all__ = ["ExtractResult", "extract", "build_skeleton", "posed_rest_points"]
 
 log = logging.getLogger(__name__)
 
@@ -50,6 +50,9 @@ class ExtractResult:
     timings: dict[str, float] = field(default_factory=dict)
     reused_registration: bool = False
     files: dict[str, Path] = field(default_factory=dict)
+    #: the last :func:`pointrig.registration.refine_registration` result (``refine_rounds``
+    #: > 0 and step 3 run), else ``None``
+    refined_registration: Any = None
 
 
 def _tree_order(bone_parent: np.ndarray) -> np.ndarray:
@@ -64,6 +67,23 @@ def _tree_order(bone_parent: np.ndarray) -> np.ndarray:
         queue.extend(int(c) for c in np.flatnonzero(bone_parent == b))
     missing = [b for b in range(len(bone_parent)) if b not in order]
     return np.array(order + missing, dtype=np.int64)
+
+
+def posed_rest_points(rest_points: np.ndarray, labels: np.ndarray, R: np.ndarray,
+                      T: np.ndarray) -> np.ndarray:
+    """The rest points carried rigidly by their bones, ``(F, M, 3)`` metres.
+
+    Parameters
+    ----------
+    rest_points
+        ``(M, 3)`` rest points, metres.
+    labels
+        ``(M,)`` bone of each point.
+    R, T
+        ``(F, B, 3, 3)`` and ``(F, B, 3)`` bone transforms ``T_frame_rest``.
+    """
+    labels = np.asarray(labels, dtype=np.int64)
+    return (np.einsum("fmab,mb->fma", R[:, labels], rest_points) + T[:, labels])
 
 
 def build_skeleton(rest_points: np.ndarray, bone_parent: np.ndarray, joints_rest: np.ndarray,
@@ -189,6 +209,28 @@ def extract(
                                      rest_index=None if rest_index is None else int(rest_index),
                                      track_progress=report("tracking"))
         timings["joints"] = time.perf_counter() - t0
+        # ---- refinement from the skeleton (docs/registration.md "Session 26") ----------
+        for rnd in range(config.registration.refine_rounds):
+            t0 = time.perf_counter()
+            posed = posed_rest_points(reg.rest_points, st.labels, jr.R, jr.T)
+            refined = reg_mod.refine_registration(seq, reg, posed, config.registration,
+                                                  progress=report(f"refinement {rnd + 1}"))
+            timings["refinement"] = timings.get("refinement", 0.0) + time.perf_counter() - t0
+            t0 = time.perf_counter()
+            st = struct_mod.extract_structure(refined.rest_points, refined.points,
+                                              config.structure)
+            timings["structure"] += time.perf_counter() - t0
+            if progress:
+                progress("structure", 1, 1, f"{len(st.bone_parent)} bones (refined)")
+            t0 = time.perf_counter()
+            jr = joints_mod.learn_joints(seq.frames, refined.rest_points, refined.points, st,
+                                         config.joints, progress=report("joints"),
+                                         rest_index=None if rest_index is None
+                                         else int(rest_index),
+                                         track_progress=report("tracking"))
+            timings["joints"] += time.perf_counter() - t0
+            result.structure = st
+            result.refined_registration = refined
         result.joints = jr
         labels = np.argmax(jr.weights, axis=1)
         skel = build_skeleton(reg.rest_points, st.bone_parent, jr.joints_rest, jr.R, jr.T,
@@ -210,7 +252,7 @@ def extract(
         result.files["bvh"] = out / "skeleton.bvh"
         result.files["gltf"] = out / "skeleton.glb"
         if pictures:
-            _write_pictures(out, seq, reg, skel)
+            _write_pictures(out, seq, result.refined_registration or reg, skel)
             result.files["png"] = out / "skeleton.png"
             result.files["gif"] = out / "skeleton.gif"
     return result
