@@ -57,8 +57,8 @@ from bench_registration_downstream import FIGURES, score_joints, score_step2  # 
 
 from pointrig.config import PipelineConfig, StructureConfig  # noqa: E402
 from pointrig.evaluate import SWING_SOURCES  # noqa: E402
-from pointrig.joints import learn_joints  # noqa: E402
-from pointrig.pipeline import build_skeleton, posed_rest_points  # noqa: E402
+from pointrig.joints import learn_joints, posed_rest_points  # noqa: E402
+from pointrig.pipeline import build_skeleton  # noqa: E402
 from pointrig.registration import (  # noqa: E402
     RegistrationResult,
     refine_registration,

@@ -50,8 +50,8 @@ from .kinematics import joint_trajectories, solve_joint_positions
 from .preprocess import chamfer_misfit, estimate_normals, mean_spacing
 from .view import view_depth_correct
 
-__all__ = ["JointsResult", "StructureLike", "learn_joints", "e_step", "e_step_numpy",
-           "solve_joints_articulated", "track_bones"]
+__all__ = ["JointsResult", "StructureLike", "learn_joints", "posed_rest_points", "e_step",
+           "e_step_numpy", "solve_joints_articulated", "track_bones"]
 
 log = logging.getLogger(__name__)
 _N_THREADS = max(1, min(4, os.cpu_count() or 1))
@@ -653,6 +653,27 @@ def _sparse_to_dense(idx: np.ndarray, w: np.ndarray, B: int) -> np.ndarray:
     W = np.zeros((idx.shape[0], B))
     np.add.at(W, (np.repeat(np.arange(idx.shape[0]), idx.shape[1]), idx.ravel()), w.ravel())
     return W
+
+
+def posed_rest_points(rest_points: np.ndarray, labels: np.ndarray, R: np.ndarray,
+                      T: np.ndarray) -> np.ndarray:
+    """The rest points carried rigidly by their bones (one-hot LBS, Eq. 13), ``(F, M, 3)``
+    metres.
+
+    Parameters
+    ----------
+    rest_points
+        ``(M, 3)`` rest points, metres.
+    labels
+        ``(M,)`` bone of each point.
+    R, T
+        ``(F, B, 3, 3)`` and ``(F, B, 3)`` bone transforms ``T_frame_rest``.
+    """
+    q = np.ascontiguousarray(rest_points, dtype=np.float64)
+    idx = np.ascontiguousarray(np.asarray(labels, dtype=np.int64)[:, None])
+    Rf, Tf = _flat_rt(np.asarray(R, dtype=np.float64), np.asarray(T, dtype=np.float64))
+    F = R.shape[0]
+    return _core.lbs_skin(q, idx, np.ones((len(q), 1)), Rf, Tf, F).reshape(F, len(q), 3)
 
 
 def _flat_rt(R: np.ndarray, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

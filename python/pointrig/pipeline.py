@@ -30,7 +30,7 @@ from .kinematics import joint_trajectories
 from .sequence import PointSequence, check_units
 from .skeleton import Skeleton
 
-__all__ = ["ExtractResult", "extract", "build_skeleton", "posed_rest_points"]
+__all__ = ["ExtractResult", "extract", "build_skeleton"]
 
 log = logging.getLogger(__name__)
 
@@ -67,23 +67,6 @@ def _tree_order(bone_parent: np.ndarray) -> np.ndarray:
         queue.extend(int(c) for c in np.flatnonzero(bone_parent == b))
     missing = [b for b in range(len(bone_parent)) if b not in order]
     return np.array(order + missing, dtype=np.int64)
-
-
-def posed_rest_points(rest_points: np.ndarray, labels: np.ndarray, R: np.ndarray,
-                      T: np.ndarray) -> np.ndarray:
-    """The rest points carried rigidly by their bones, ``(F, M, 3)`` metres.
-
-    Parameters
-    ----------
-    rest_points
-        ``(M, 3)`` rest points, metres.
-    labels
-        ``(M,)`` bone of each point.
-    R, T
-        ``(F, B, 3, 3)`` and ``(F, B, 3)`` bone transforms ``T_frame_rest``.
-    """
-    labels = np.asarray(labels, dtype=np.int64)
-    return (np.einsum("fmab,mb->fma", R[:, labels], rest_points) + T[:, labels])
 
 
 def build_skeleton(rest_points: np.ndarray, bone_parent: np.ndarray, joints_rest: np.ndarray,
@@ -202,17 +185,23 @@ def extract(
                               weights, st.labels)
     else:
         # ---- step 3: joint learning ------------------------------------------------------
-        t0 = time.perf_counter()
         rest_index = reg.params.get("rest_frame_index") if reg.params else None
-        jr = joints_mod.learn_joints(seq.frames, reg.rest_points, reg.points, st,
-                                     config.joints, progress=report("joints"),
-                                     rest_index=None if rest_index is None else int(rest_index),
-                                     track_progress=report("tracking"))
-        timings["joints"] = time.perf_counter() - t0
+
+        def step3(r: Any, structure: Any) -> Any:
+            t0 = time.perf_counter()
+            out3 = joints_mod.learn_joints(
+                seq.frames, r.rest_points, r.points, structure, config.joints,
+                progress=report("joints"),
+                rest_index=None if rest_index is None else int(rest_index),
+                track_progress=report("tracking"))
+            timings["joints"] = timings.get("joints", 0.0) + time.perf_counter() - t0
+            return out3
+
+        jr = step3(reg, st)
         # ---- refinement from the skeleton (docs/registration.md "Session 26") ----------
         for rnd in range(config.registration.refine_rounds):
             t0 = time.perf_counter()
-            posed = posed_rest_points(reg.rest_points, st.labels, jr.R, jr.T)
+            posed = joints_mod.posed_rest_points(reg.rest_points, st.labels, jr.R, jr.T)
             refined = reg_mod.refine_registration(seq, reg, posed, config.registration,
                                                   progress=report(f"refinement {rnd + 1}"))
             timings["refinement"] = timings.get("refinement", 0.0) + time.perf_counter() - t0
@@ -222,13 +211,7 @@ def extract(
             timings["structure"] += time.perf_counter() - t0
             if progress:
                 progress("structure", 1, 1, f"{len(st.bone_parent)} bones (refined)")
-            t0 = time.perf_counter()
-            jr = joints_mod.learn_joints(seq.frames, refined.rest_points, refined.points, st,
-                                         config.joints, progress=report("joints"),
-                                         rest_index=None if rest_index is None
-                                         else int(rest_index),
-                                         track_progress=report("tracking"))
-            timings["joints"] += time.perf_counter() - t0
+            jr = step3(refined, st)
             result.structure = st
             result.refined_registration = refined
         result.joints = jr
