@@ -151,7 +151,7 @@ class RegistrationConfig:
     # by step 3's tracked skeleton (no frame-to-frame chain), and steps 2-3 run again on that
     # registration; this many rounds. 0 = one pass, as the paper. 14 sequences of 100 frames:
     # recall / precision / normalised 0.686 / 0.431 / 2.85 cm -> 0.725 / 0.481 / 2.60 cm; on
-    # 25 sequences of 40 frames (shorter chains) neutral, 0.787 / 0.551 -> 0.777 / 0.539; about
+    # 25 sequences of 40 frames (shorter chains) neutral, 0.787 / 0.551 -> 0.779 / 0.542; about
     # twice the run time. Not part of the step-1 checkpoint key: changing it reuses
     # registration.npz
     refine_rounds: int = 1
