@@ -493,8 +493,16 @@ def _register_one(g, x, r_init, t_init, config, kw, sigma2_start=None, extra_rig
     )
 
 
-def node_transforms_from_points(graph: DeformationGraph, posed: np.ndarray,
-                                k: int = 12) -> tuple[np.ndarray, np.ndarray]:
+def _node_neighbours(graph: DeformationGraph, k: int) -> np.ndarray:
+    """``(J, k')`` indices of each node's ``k' = min(max(k, 3), M)`` nearest rest points."""
+    kk = int(min(max(k, 3), len(graph.rest)))
+    _, nb = cKDTree(graph.rest).query(graph.nodes, k=kk)
+    return nb.reshape(len(graph.nodes), kk)
+
+
+def node_transforms_from_points(graph: DeformationGraph, posed: np.ndarray, k: int = 12,
+                                neighbours: np.ndarray | None = None
+                                ) -> tuple[np.ndarray, np.ndarray]:
     """Node transforms ``(R (J, 3, 3), T (J, 3))`` of Eq. 2 that carry the rest points to
     ``posed``: each node's rigid motion is the Kabsch fit of its ``k`` nearest rest points to
     their posed positions, written as ``y' = R (y - n) + n + T``.
@@ -507,12 +515,13 @@ def node_transforms_from_points(graph: DeformationGraph, posed: np.ndarray,
         ``(M, 3)`` positions of the rest points in one frame, metres.
     k
         Rest points per node fit (at least 3).
+    neighbours
+        ``(J, k')`` those rest points' indices when already known (they depend on the graph
+        only, so a caller posing many frames finds them once); ``None`` = found here.
     """
     q = graph.rest
     nodes = graph.nodes
-    kk = int(min(max(k, 3), len(q)))
-    _, nb = cKDTree(q).query(nodes, k=kk)
-    nb = nb.reshape(len(nodes), kk)
+    nb = _node_neighbours(graph, k) if neighbours is None else neighbours
     a, b = q[nb], posed[nb]  # (J, k, 3)
     ca, cb = a.mean(1), b.mean(1)
     h = np.einsum("jka,jkb->jab", a - ca[:, None], b - cb[:, None])
@@ -585,6 +594,7 @@ def refine_registration(
                          f"got {posed.shape}")
     rf = int(reg.params.get("rest_frame_index", resolve_rest_frame(config, f)))
     graph, g, kw, normal_radius = _frame_setup(rest, seq.frames[rf], config)
+    neighbours = _node_neighbours(graph, 12)
     points = posed.copy()
     sigma2 = np.zeros(f)
     iters = np.zeros(f, dtype=np.int64)
@@ -593,7 +603,7 @@ def refine_registration(
     for t in range(f):
         x = np.ascontiguousarray(seq.frames[t], dtype=np.float64)
         if len(x):
-            r0, t0 = node_transforms_from_points(graph, posed[t])
+            r0, t0 = node_transforms_from_points(graph, posed[t], neighbours=neighbours)
             if config.normal_kappa > 0:
                 kw["x_normals"] = estimate_normals(x, normal_radius)
             s2 = min(max(_residual_sigma2(g.deform(r0, t0), x), config.sigma2_min),
