@@ -500,40 +500,61 @@ def _node_neighbours(graph: DeformationGraph, k: int) -> np.ndarray:
     return nb.reshape(len(graph.nodes), kk)
 
 
-def node_transforms_from_points(graph: DeformationGraph, posed: np.ndarray, k: int = 12,
-                                neighbours: np.ndarray | None = None
+def node_transforms_from_points(graph: DeformationGraph, posed: np.ndarray, k: int = 12
                                 ) -> tuple[np.ndarray, np.ndarray]:
-    """Node transforms ``(R (J, 3, 3), T (J, 3))`` of Eq. 2 that carry the rest points to
-    ``posed``: each node's rigid motion is the Kabsch fit of its ``k`` nearest rest points to
-    their posed positions, written as ``y' = R (y - n) + n + T``.
+    """Node transforms of Eq. 2 that carry the rest points to ``posed``: each node's rigid
+    motion is the Kabsch fit of its ``k`` nearest rest points to their posed positions,
+    written as ``y' = R (y - n) + n + T``.
+
+    The fits run in the Rust batched Kabsch (``_core.cluster_fit``, the fit of step 2's
+    Eq. 14), each node's neighbourhood a cluster; the neighbourhoods are found once for all
+    frames.
 
     Parameters
     ----------
     graph
         The deformation graph (rest points and nodes, metres).
     posed
-        ``(M, 3)`` positions of the rest points in one frame, metres.
+        ``(M, 3)`` positions of the rest points in one frame, or ``(F, M, 3)`` in ``F``
+        frames, metres.
     k
-        Rest points per node fit (at least 3).
-    neighbours
-        ``(J, k')`` those rest points' indices when already known (they depend on the graph
-        only, so a caller posing many frames finds them once); ``None`` = found here.
+        Rest points per node fit (at least 3, at most ``M``).
+
+    Returns
+    -------
+    R, T
+        ``(J, 3, 3)`` rotations and ``(J, 3)`` translations (metres) for one frame, or
+        ``(F, J, 3, 3)`` and ``(F, J, 3)`` for ``F`` frames.
+
+    Raises
+    ------
+    InputError
+        If ``posed`` is not ``(M, 3)`` or ``(F, M, 3)`` for the graph's ``M`` rest points.
     """
-    q = graph.rest
+    posed = np.asarray(posed, dtype=np.float64)
+    one = posed.ndim == 2
+    seq = posed[None] if one else posed
+    m = len(graph.rest)
+    if seq.ndim != 3 or seq.shape[1:] != (m, 3):
+        raise InputError(f"node_transforms_from_points: posed must be ({m}, 3) or (F, {m}, 3), "
+                         f"got {posed.shape}")
+    nb = _node_neighbours(graph, k)  # (J, k')
+    j, kk = nb.shape
+    flat = nb.reshape(-1)
+    labels = np.repeat(np.arange(j, dtype=np.int64), kk)
+    rest = np.ascontiguousarray(graph.rest[flat])
     nodes = graph.nodes
-    nb = _node_neighbours(graph, k) if neighbours is None else neighbours
-    a, b = q[nb], posed[nb]  # (J, k, 3)
-    ca, cb = a.mean(1), b.mean(1)
-    h = np.einsum("jka,jkb->jab", a - ca[:, None], b - cb[:, None])
-    u, _s, vt = np.linalg.svd(h)
-    v = vt.transpose(0, 2, 1)
-    d = np.sign(np.linalg.det(np.einsum("jab,jcb->jac", v, u)))
-    d[d == 0] = 1.0
-    v[:, :, 2] *= d[:, None]
-    r = np.einsum("jab,jcb->jac", v, u)  # R = V diag(1, 1, d) U^T (Lemma 1)
-    t = cb - np.einsum("jab,jb->ja", r, ca)
-    big_t = np.einsum("jab,jb->ja", r, nodes) + t - nodes
-    return np.ascontiguousarray(r), np.ascontiguousarray(big_t)
+    f = len(seq)
+    r = np.empty((f, j, 3, 3))
+    big_t = np.empty((f, j, 3))
+    step = max(1, 4_000_000 // max(len(flat), 1))  # frames per call: at most ~4M points
+    for a in range(0, f, step):
+        pts = np.ascontiguousarray(seq[a:a + step][:, flat])
+        ra, ta, _ = _core.cluster_fit(rest, pts, labels, j)  # y = R q + t
+        r[a:a + step] = ra
+        # y = R (q - n) + n + T  =>  T = R n + t - n
+        big_t[a:a + step] = np.einsum("fjab,jb->fja", ra, nodes) + ta - nodes
+    return (r[0], big_t[0]) if one else (r, big_t)
 
 
 def refine_registration(
@@ -594,7 +615,7 @@ def refine_registration(
                          f"got {posed.shape}")
     rf = int(reg.params.get("rest_frame_index", resolve_rest_frame(config, f)))
     graph, g, kw, normal_radius = _frame_setup(rest, seq.frames[rf], config)
-    neighbours = _node_neighbours(graph, 12)
+    r_start, t_start = node_transforms_from_points(graph, posed)  # (F, J, 3, 3), (F, J, 3)
     points = posed.copy()
     sigma2 = np.zeros(f)
     iters = np.zeros(f, dtype=np.int64)
@@ -603,7 +624,7 @@ def refine_registration(
     for t in range(f):
         x = np.ascontiguousarray(seq.frames[t], dtype=np.float64)
         if len(x):
-            r0, t0 = node_transforms_from_points(graph, posed[t], neighbours=neighbours)
+            r0, t0 = r_start[t], t_start[t]
             if config.normal_kappa > 0:
                 kw["x_normals"] = estimate_normals(x, normal_radius)
             s2 = min(max(_residual_sigma2(g.deform(r0, t0), x), config.sigma2_min),
