@@ -16,6 +16,13 @@ sequences where both variants match a joint)::
 
     PYTHONPATH=python python benchmarks/bench_refine.py            # 100 frames, ~12 min
     PYTHONPATH=python python benchmarks/bench_refine.py --frames 40 --only human,girl_run
+    PYTHONPATH=python python benchmarks/bench_refine.py --repeats 3  # rounding spread, ~36 min
+
+The pipeline amplifies rounding (docs/registration.md, "Session 27"): ``--repeats K`` runs
+every sequence ``K`` times, repeat ``k > 0`` with each input coordinate moved by a uniform
+random amount of at most 1e-9 m (seeded by ``k``), and prints the per-sequence means with the
+recall range over the repeats, then the spread (min-max) of the suite means. A difference
+between two variants smaller than that spread is not a measured difference.
 """
 
 from __future__ import annotations
@@ -35,6 +42,7 @@ from bench_registration_downstream import score_joints  # noqa: E402
 
 from pointrig.config import PipelineConfig  # noqa: E402
 from pointrig.pipeline import extract  # noqa: E402
+from pointrig.sequence import PointSequence  # noqa: E402
 from pointrig.synth import Camera, NoiseConfig, synthesize  # noqa: E402
 
 _MODELS = Path(__file__).resolve().parents[2] / "shared" / "data" / "models"
@@ -70,7 +78,11 @@ def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=100)
     ap.add_argument("--only", default="", help="comma-separated sequence names")
+    ap.add_argument("--repeats", type=int, default=1,
+                    help="runs per sequence, repeats after the first on input jittered by 1e-9 m")
     a = ap.parse_args(argv)
+    if a.repeats < 1:
+        ap.error("--repeats must be >= 1")
     only = {n for n in a.only.split(",") if n}
     if only - set(SEQUENCES):
         ap.error(f"--only: unknown {', '.join(sorted(only - set(SEQUENCES)))}; "
@@ -78,9 +90,12 @@ def main(argv: list[str]) -> int:
     base = PipelineConfig()
     cfgs = {r: dataclasses.replace(base, registration=dataclasses.replace(
         base.registration, refine_rounds=r)) for r in (0, 1)}
-    rows: dict[int, list[tuple[float, float, float, float]]] = {0: [], 1: []}
+    # rows[r][k]: one (recall, precision, raw cm, normalised cm) per sequence, variant r, repeat k
+    rows: dict[int, list[list[tuple[float, float, float, float]]]] = {
+        r: [[] for _ in range(a.repeats)] for r in (0, 1)}
+    rng_note = " (means over repeats; recall min-max)" if a.repeats > 1 else ""
     print(f"{'sequence':<16} {'refine_rounds 0: rec/prec raw norm (s)':<40} "
-          f"{'refine_rounds 1: rec/prec raw norm (s)':<40}")
+          f"{'refine_rounds 1: rec/prec raw norm (s)':<40}{rng_note}")
     for name, (source, kw) in SEQUENCES.items():
         if only and name not in only:
             continue
@@ -88,32 +103,61 @@ def main(argv: list[str]) -> int:
             print(f"{name:<16} skipped: {source} not found")
             continue
         syn = _synth(source, kw, a.frames)
-        seq = syn.to_point_sequence()
+        seq0 = syn.to_point_sequence()
+        got: dict[int, list[tuple[float, float, float, float, float]]] = {0: [], 1: []}
+        for k in range(a.repeats):
+            seq = seq0 if k == 0 else _jittered(seq0, k)
+            t_reg = 0.0
+            with tempfile.TemporaryDirectory() as tmp:
+                for r in (0, 1):
+                    res = extract(seq, cfgs[r], tmp, pictures=False)
+                    if r == 0:
+                        t_reg = res.timings["registration"]
+                    # the whole pipeline's time (the second run reuses the first's registration)
+                    secs = t_reg + sum(v for kk, v in res.timings.items() if kk != "registration")
+                    rep = score_joints(res.skeleton.joint_positions, syn)
+                    row = (rep.recall, rep.precision, 100 * rep.raw_error,
+                           100 * rep.normalized_error)
+                    rows[r][k].append(row)
+                    got[r].append((*row, secs))
         line = f"{name:<16}"
-        t_reg = 0.0
-        with tempfile.TemporaryDirectory() as tmp:
-            for r in (0, 1):
-                res = extract(seq, cfgs[r], tmp, pictures=False)
-                if r == 0:
-                    t_reg = res.timings["registration"]
-                # the whole pipeline's time (the second run reuses the first's registration)
-                secs = t_reg + sum(v for k, v in res.timings.items() if k != "registration")
-                rep = score_joints(res.skeleton.joint_positions, syn)
-                rows[r].append((rep.recall, rep.precision, 100 * rep.raw_error,
-                                100 * rep.normalized_error))
-                line += (f" {rep.recall:.2f}/{rep.precision:.2f} {100 * rep.raw_error:6.2f} "
-                         f"{100 * rep.normalized_error:5.2f} ({secs:5.1f} s)".ljust(41))
+        for r in (0, 1):
+            g = np.array(got[r])
+            m = np.nanmean(g, axis=0) if np.isfinite(g[:, 3]).any() else g.mean(axis=0)
+            cell = f" {m[0]:.2f}/{m[1]:.2f} {m[2]:6.2f} {m[3]:5.2f} ({m[4]:5.1f} s)"
+            if a.repeats > 1:
+                cell += f" [{g[:, 0].min():.2f}-{g[:, 0].max():.2f}]"
+            line += cell.ljust(41 if a.repeats == 1 else 53)
         print(line, flush=True)
-    if not rows[0]:
+    if not rows[0][0]:
         return 0
-    m0, m1 = np.array(rows[0]), np.array(rows[1])
-    both = np.isfinite(m0[:, 3]) & np.isfinite(m1[:, 3])
-    print(f"\nmeans over {len(m0)} sequences of {a.frames} frames (errors over the {both.sum()} "
-          "where both match a joint):")
-    for r, m in ((0, m0), (1, m1)):
-        print(f"refine_rounds {r}: recall {m[:, 0].mean():.3f} precision {m[:, 1].mean():.3f} "
-              f"raw {m[both, 2].mean():.2f} cm normalised {m[both, 3].mean():.2f} cm")
+    n = len(rows[0][0])
+    print(f"\nmeans over {n} sequences of {a.frames} frames (errors over the sequences where "
+          "both variants match a joint):")
+    for r in (0, 1):
+        per = []
+        for k in range(a.repeats):
+            m0, m1 = np.array(rows[0][k]), np.array(rows[1][k])
+            both = np.isfinite(m0[:, 3]) & np.isfinite(m1[:, 3])
+            m = np.array(rows[r][k])
+            per.append((m[:, 0].mean(), m[:, 1].mean(), m[both, 2].mean(), m[both, 3].mean()))
+        p = np.array(per)
+        line = (f"refine_rounds {r}: recall {p[:, 0].mean():.3f} precision {p[:, 1].mean():.3f} "
+                f"raw {p[:, 2].mean():.2f} cm normalised {p[:, 3].mean():.2f} cm")
+        if a.repeats > 1:
+            line += (f"; over {a.repeats} repeats recall {p[:, 0].min():.3f}-{p[:, 0].max():.3f}"
+                     f", precision {p[:, 1].min():.3f}-{p[:, 1].max():.3f}, normalised "
+                     f"{p[:, 3].min():.2f}-{p[:, 3].max():.2f} cm")
+        print(line)
     return 0
+
+
+def _jittered(seq: PointSequence, k: int) -> PointSequence:
+    """``seq`` with every coordinate moved by a uniform amount in [-1e-9, 1e-9] m (seed ``k``):
+    far below the sensor noise, so any change of the result is the pipeline's rounding."""
+    rng = np.random.default_rng(k)
+    return PointSequence([f + rng.uniform(-1e-9, 1e-9, f.shape) for f in seq.frames],
+                         source=seq.source, names=list(seq.names), fmt=seq.fmt)
 
 
 if __name__ == "__main__":
