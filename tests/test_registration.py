@@ -22,8 +22,14 @@ from scipy.spatial.transform import Rotation
 
 from pointrig import _core
 from pointrig.config import RegistrationConfig
-from pointrig.errors import ConfigError
-from pointrig.registration import RegistrationResult, build_graph, cache_key, register_sequence
+from pointrig.errors import ConfigError, InputError
+from pointrig.registration import (
+    RegistrationResult,
+    build_graph,
+    cache_key,
+    node_transforms_from_points,
+    register_sequence,
+)
 from pointrig.sequence import PointSequence
 
 
@@ -471,7 +477,6 @@ def test_refinement_pulls_a_displaced_pose_back_onto_the_data() -> None:
     (under 1 cm) of the true correspondences (oracle: the capsules' material points). Twist
     about the capsules' axis and slide along it are left out: a cylinder's surface does not
     show them. A posed array of the wrong shape is an InputError."""
-    from pointrig.errors import InputError
     from pointrig.registration import refine_registration
 
     frames, truth = capsule_arm(6, 8.0, n=6000)
@@ -515,9 +520,6 @@ def test_node_transforms_from_points_recover_rigid_motion_per_frame():
     """Oracle: a rigid motion of all rest points gives every node that rotation and
     ``T = R n + t - n`` (Eq. 2's form); the frames are fitted independently (a stack equals
     the single-frame calls); a wrong shape is a typed error."""
-    from pointrig.errors import InputError
-    from pointrig.registration import node_transforms_from_points
-
     rng = np.random.default_rng(3)
     rest = rng.normal(size=(1500, 3)) * [0.3, 0.6, 0.1]
     g = build_graph(rest, RegistrationConfig())
