@@ -577,8 +577,9 @@ def refine_registration(
     ``sigma2_init``) and no rigid steps, and the usual EM (Eqs. 4-12) fits it to the frame:
     no chain, so nothing propagates from one frame to the next. The pipeline then runs steps
     2 and 3 again on the result. 14 sequences of 100 frames: recall / precision / normalised
-    0.686 / 0.431 / 2.85 cm -> 0.725 / 0.481 / 2.60 cm; 25 of 40 frames (shorter chains):
-    0.787 / 0.551 / 2.53 -> 0.779 / 0.542 / 2.50 cm.
+    0.686 / 0.431 / 2.85 cm -> 0.725 / 0.481 / 2.60 cm (session 27, mean of three runs on
+    inputs 1e-9 m apart: 0.675 / 0.412 / 3.23 -> 0.706 / 0.433 / 2.76 cm); 25 of 40 frames
+    (shorter chains): 0.787 / 0.551 / 2.53 -> 0.779 / 0.542 / 2.50 cm.
 
     Parameters
     ----------
