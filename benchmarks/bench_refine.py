@@ -16,7 +16,7 @@ sequences where both variants match a joint)::
 
     PYTHONPATH=python python benchmarks/bench_refine.py            # 100 frames, ~12 min
     PYTHONPATH=python python benchmarks/bench_refine.py --frames 40 --only human,girl_run
-    PYTHONPATH=python python benchmarks/bench_refine.py --repeats 3  # rounding spread, ~36 min
+    PYTHONPATH=python python benchmarks/bench_refine.py --repeats 3  # rounding spread, ~40-50 min
 
 The pipeline amplifies rounding (docs/registration.md, "Session 27"): ``--repeats K`` runs
 every sequence ``K`` times, repeat ``k > 0`` with each input coordinate moved by a uniform
