@@ -90,8 +90,9 @@ def main(argv: list[str]) -> int:
     base = PipelineConfig()
     cfgs = {r: dataclasses.replace(base, registration=dataclasses.replace(
         base.registration, refine_rounds=r)) for r in (0, 1)}
-    # rows[r][k]: one (recall, precision, raw cm, normalised cm) per sequence, variant r, repeat k
-    rows: dict[int, list[list[tuple[float, float, float, float]]]] = {
+    # rows[r][k]: one (recall, precision, raw cm, normalised cm, seconds) per sequence, for
+    # variant r and repeat k
+    rows: dict[int, list[list[tuple[float, float, float, float, float]]]] = {
         r: [[] for _ in range(a.repeats)] for r in (0, 1)}
     rng_note = " (means over repeats; recall min-max)" if a.repeats > 1 else ""
     print(f"{'sequence':<16} {'refine_rounds 0: rec/prec raw norm (s)':<40} "
@@ -104,7 +105,6 @@ def main(argv: list[str]) -> int:
             continue
         syn = _synth(source, kw, a.frames)
         seq0 = syn.to_point_sequence()
-        got: dict[int, list[tuple[float, float, float, float, float]]] = {0: [], 1: []}
         for k in range(a.repeats):
             seq = seq0 if k == 0 else _jittered(seq0, k)
             t_reg = 0.0
@@ -116,13 +116,11 @@ def main(argv: list[str]) -> int:
                     # the whole pipeline's time (the second run reuses the first's registration)
                     secs = t_reg + sum(v for kk, v in res.timings.items() if kk != "registration")
                     rep = score_joints(res.skeleton.joint_positions, syn)
-                    row = (rep.recall, rep.precision, 100 * rep.raw_error,
-                           100 * rep.normalized_error)
-                    rows[r][k].append(row)
-                    got[r].append((*row, secs))
+                    rows[r][k].append((rep.recall, rep.precision, 100 * rep.raw_error,
+                                       100 * rep.normalized_error, secs))
         line = f"{name:<16}"
         for r in (0, 1):
-            g = np.array(got[r])
+            g = np.array([rows[r][k][-1] for k in range(a.repeats)])  # this sequence
             m = np.nanmean(g, axis=0) if np.isfinite(g[:, 3]).any() else g.mean(axis=0)
             cell = f" {m[0]:.2f}/{m[1]:.2f} {m[2]:6.2f} {m[3]:5.2f} ({m[4]:5.1f} s)"
             if a.repeats > 1:
