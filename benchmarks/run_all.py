@@ -32,6 +32,7 @@ def main(argv: list[str] | None = None) -> int:
         ["bench_structure_suite.py", "--timing"],
         ["bench_render.py"],
         ["bench_refine.py", "--frames", frames],
+        ["bench_joint_oracle.py", "--frames", frames],
     ]
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(
