@@ -24,8 +24,8 @@ distance of the pipeline's rest joints from the oracle ones, split (root mean sq
 (along the camera ray, ``StructureResult.view_camera``, the origin if unset) and ``across``
 (the rest). Where the motions leave the best rest position undetermined (a joint turning about
 one axis or not at all), ``c*`` is the best one nearest ``c``, and the distance leaves out the
-directions whose singular value of the centred ``A`` is below ``DETERMINED`` (0.1) times the
-largest: it counts only what the motions determine. All on the joints the evaluation matches
+directions in which the motion turns less than ``DETERMINED`` (0.1 rad RMS over the frames):
+it counts only what the motions determine. All on the joints the evaluation matches
 in the pipeline's output (the same matching for every row).
 
 Runs the default pipeline on the sequences of ``bench_refine.py`` (100 frames; a glTF rig
@@ -56,8 +56,8 @@ from pointrig.kinematics import joint_trajectories  # noqa: E402
 from pointrig.pipeline import extract  # noqa: E402
 
 
-#: directions whose singular value of the centred ``A`` is below this fraction of the largest
-#: do not count in ``|c - c*|`` and its parts
+#: directions in which a joint's motion turns less than this (radians, RMS over frames) do
+#: not count in ``|c - c*|`` and its parts
 DETERMINED = 0.1
 
 
@@ -91,20 +91,23 @@ def normalised_error(q: np.ndarray, g: np.ndarray) -> float:
 
 def oracle_rest_position(A: np.ndarray, b: np.ndarray, g: np.ndarray,
                          start: np.ndarray | None = None,
-                         rcond: float | None = None) -> np.ndarray:
+                         min_turn: float = 0.0) -> np.ndarray:
     """The rest position ``c (3,)`` minimising ``sum_t |(A_t c + b_t - g_t) - mean|^2``.
 
     ``A (F, 3, 3)``, ``b (F, 3)``, ``g (F, 3)`` (metres). With the mean offset free, only the
     centred ``A_t`` and ``g_t - b_t`` enter. Where ``A`` does not determine ``c`` (a joint
     that turns about one axis or not at all) the minimiser nearest ``start (3,)`` (default
     the origin) is returned: the smallest move of ``start`` that reaches the minimum.
-    ``rcond`` (as ``numpy.linalg.lstsq``) also leaves at ``start`` the directions whose
-    singular value is below ``rcond`` times the largest (weakly determined ones)."""
+    ``min_turn > 0`` (radians) also leaves at ``start`` the directions in which the motion
+    turns less than that (root mean square over frames): singular values of the centred
+    ``A`` below ``min_turn * sqrt(F)``."""
     c0 = np.zeros(3) if start is None else np.asarray(start, dtype=np.float64)
-    Ac = A - A.mean(0)
+    Ac = (A - A.mean(0)).reshape(-1, 3)
     r = (g - b) - np.einsum("fij,j->fi", A, c0)
-    y = r - r.mean(0)
-    return c0 + np.linalg.lstsq(Ac.reshape(-1, 3), y.reshape(-1), rcond=rcond)[0]
+    y = (r - r.mean(0)).reshape(-1)
+    U, sv, Vt = np.linalg.svd(Ac, full_matrices=False)
+    keep = sv > max(min_turn * np.sqrt(len(A)), 1e-12 * max(float(sv[0]), 1e-300))
+    return c0 + Vt[keep].T @ ((U[:, keep].T @ y) / sv[keep])
 
 
 def decompose(syn, result) -> dict[str, float]:
@@ -140,7 +143,7 @@ def decompose(syn, result) -> dict[str, float]:
         c = jr.joints_rest[k]
         # the distance counts only the directions the motions determine well: a joint that
         # barely turns would otherwise move far for a vanishing gain
-        d = c - oracle_rest_position(A[:, k], b[:, k], g, c, rcond=DETERMINED)
+        d = c - oracle_rest_position(A[:, k], b[:, k], g, c, min_turn=DETERMINED)
         ray = c - cam
         ray /= max(float(np.linalg.norm(ray)), 1e-12)
         axis = st.rest_points[st.labels == k].mean(0) - c if np.any(st.labels == k) else ray

@@ -77,8 +77,9 @@ def test_oracle_moves_the_start_only_where_the_motion_determines_it() -> None:
     assert abs(c_star[2] - start[2]) < 1e-10
 
 
-def test_rcond_leaves_weakly_determined_directions_at_the_start() -> None:
-    """Turning 30 deg about z and 0.5 deg about x: with rcond 0.1 only x, y move."""
+def test_min_turn_leaves_weakly_determined_directions_at_the_start() -> None:
+    """Turning up to 15 deg about z and 0.2 deg about x: with min_turn 0.05 rad only x, y
+    move."""
     rng = np.random.default_rng(4)
     F = 40
     rv = np.zeros((F, 3))
@@ -91,6 +92,6 @@ def test_rcond_leaves_weakly_determined_directions_at_the_start() -> None:
     start = np.zeros(3)
     exact = oracle_rest_position(A, b, g, start)
     np.testing.assert_allclose(exact, c, atol=1e-8)
-    trunc = oracle_rest_position(A, b, g, start, rcond=0.1)
+    trunc = oracle_rest_position(A, b, g, start, min_turn=0.05)
     np.testing.assert_allclose(trunc[:2], c[:2], atol=1e-3)
     assert abs(trunc[2]) < 1e-3
