@@ -48,7 +48,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_refine import SEQUENCES, _synth  # noqa: E402
+from bench_refine import selected, suite  # noqa: E402
 from bench_registration_downstream import score_joints  # noqa: E402
 
 from pointrig.config import PipelineConfig  # noqa: E402
@@ -167,10 +167,7 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--frames", type=int, default=100)
     ap.add_argument("--only", default="", help="comma-separated sequence names")
     a = ap.parse_args(argv)
-    only = {n for n in a.only.split(",") if n}
-    if only - set(SEQUENCES):
-        ap.error(f"--only: unknown {', '.join(sorted(only - set(SEQUENCES)))}; "
-                 f"known: {', '.join(SEQUENCES)}")
+    only = selected(ap, a.only)
     cols = ("actual", "oracle", "gt_rest", "step2", "ctilde", "dist", "axis", "depth",
             "across", "raw", "raw_gt_rest")
     print("normalised errors (cm) under the pipeline's motions with its rest joints (actual), "
@@ -179,13 +176,7 @@ def main(argv: list[str]) -> int:
     print(f"{'sequence':<16} {'matched':>7} " + " ".join(f"{c:>11}" for c in cols)
           + f" {'placement %':>11}")
     table = []
-    for name, (source, kw) in SEQUENCES.items():
-        if only and name not in only:
-            continue
-        if source.endswith(".glb") and not Path(source).exists():
-            print(f"{name:<16} skipped: {source} not found")
-            continue
-        syn = _synth(source, kw, a.frames)
+    for name, syn in suite(a.frames, only):
         res = extract(syn.to_point_sequence(), PipelineConfig(), None, pictures=False)
         d = decompose(syn, res)
         if d["matched"] == 0:

@@ -31,7 +31,9 @@ import argparse
 import dataclasses
 import sys
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -74,6 +76,27 @@ def _synth(source: str, kw: dict, frames: int):
                       noise=dataclasses.replace(NoiseConfig(), outliers=0.02), **kw)
 
 
+def selected(ap: argparse.ArgumentParser, only_arg: str) -> set[str]:
+    """The names of ``--only`` (comma-separated; empty = all), or ``ap.error`` on unknown ones."""
+    only = {n for n in only_arg.split(",") if n}
+    if only - set(SEQUENCES):
+        ap.error(f"--only: unknown {', '.join(sorted(only - set(SEQUENCES)))}; "
+                 f"known: {', '.join(SEQUENCES)}")
+    return only
+
+
+def suite(frames: int, only: set[str]) -> Iterator[tuple[str, Any]]:
+    """``(name, synthesized sequence)`` for each of :data:`SEQUENCES` in ``only`` (all if
+    empty), ``frames`` frames each; a glTF rig whose file is missing is reported and skipped."""
+    for name, (source, kw) in SEQUENCES.items():
+        if only and name not in only:
+            continue
+        if source.endswith(".glb") and not Path(source).exists():
+            print(f"{name:<16} skipped: {source} not found")
+            continue
+        yield name, _synth(source, kw, frames)
+
+
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=100)
@@ -83,10 +106,7 @@ def main(argv: list[str]) -> int:
     a = ap.parse_args(argv)
     if a.repeats < 1:
         ap.error("--repeats must be >= 1")
-    only = {n for n in a.only.split(",") if n}
-    if only - set(SEQUENCES):
-        ap.error(f"--only: unknown {', '.join(sorted(only - set(SEQUENCES)))}; "
-                 f"known: {', '.join(SEQUENCES)}")
+    only = selected(ap, a.only)
     base = PipelineConfig()
     cfgs = {r: dataclasses.replace(base, registration=dataclasses.replace(
         base.registration, refine_rounds=r)) for r in (0, 1)}
@@ -97,13 +117,7 @@ def main(argv: list[str]) -> int:
     rng_note = " (means over repeats; recall min-max)" if a.repeats > 1 else ""
     print(f"{'sequence':<16} {'refine_rounds 0: rec/prec raw norm (s)':<40} "
           f"{'refine_rounds 1: rec/prec raw norm (s)':<40}{rng_note}")
-    for name, (source, kw) in SEQUENCES.items():
-        if only and name not in only:
-            continue
-        if source.endswith(".glb") and not Path(source).exists():
-            print(f"{name:<16} skipped: {source} not found")
-            continue
-        syn = _synth(source, kw, a.frames)
+    for name, syn in suite(a.frames, only):
         seq0 = syn.to_point_sequence()
         for k in range(a.repeats):
             seq = seq0 if k == 0 else _jittered(seq0, k)
