@@ -31,7 +31,7 @@ in the pipeline's output (the same matching for every row).
 Runs the default pipeline on the sequences of ``bench_refine.py`` (100 frames; a glTF rig
 needs ``../shared/data/models``)::
 
-    PYTHONPATH=python python benchmarks/bench_joint_oracle.py                 # ~12 min
+    PYTHONPATH=python python benchmarks/bench_joint_oracle.py                 # ~14 min
     PYTHONPATH=python python benchmarks/bench_joint_oracle.py --only human --frames 40
 
 The oracle uses the ground truth: it is a diagnosis, not a method.
@@ -52,6 +52,7 @@ from bench_refine import selected, suite  # noqa: E402
 from bench_registration_downstream import score_joints  # noqa: E402
 
 from pointrig.config import PipelineConfig  # noqa: E402
+from pointrig.evaluate import pair_errors  # noqa: E402
 from pointrig.kinematics import joint_trajectories  # noqa: E402
 from pointrig.pipeline import extract  # noqa: E402
 
@@ -59,6 +60,9 @@ from pointrig.pipeline import extract  # noqa: E402
 #: directions in which a joint's motion turns less than this (radians, RMS over frames) do
 #: not count in ``|c - c*|`` and its parts
 DETERMINED = 0.1
+#: the keys of :func:`decompose` (besides ``matched``), in the order the table prints them
+COLUMNS = ("actual", "oracle", "gt_rest", "step2", "ctilde", "dist", "axis", "depth", "across",
+           "raw", "raw_gt_rest")
 
 
 def joint_maps(R: np.ndarray, T: np.ndarray, bone_parent: np.ndarray) -> tuple[np.ndarray,
@@ -81,12 +85,6 @@ def joint_maps(R: np.ndarray, T: np.ndarray, bone_parent: np.ndarray) -> tuple[n
     parent = np.asarray(bone_parent)
     p = np.where(parent >= 0, parent, np.arange(len(parent)))
     return 0.5 * (R + R[:, p]), 0.5 * (T + T[:, p])
-
-
-def normalised_error(q: np.ndarray, g: np.ndarray) -> float:
-    """Mean over frames of ``|q_t - g_t|`` after removing the mean offset; ``(F, 3)`` -> m."""
-    e = q - g
-    return float(np.linalg.norm(e - e.mean(0), axis=1).mean())
 
 
 def oracle_rest_position(A: np.ndarray, b: np.ndarray, g: np.ndarray,
@@ -133,12 +131,12 @@ def decompose(syn, result) -> dict[str, float]:
         g = syn.gt_joints[:, j]
         c_star = oracle_rest_position(A[:, k], b[:, k], g, jr.joints_rest[k])
 
-        def err(c: np.ndarray) -> float:
-            return normalised_error(np.einsum("fij,j->fi", A[:, k], c) + b[:, k], g)
+        def errors(c: np.ndarray) -> tuple[float, float]:
+            """(raw, normalised) of joint ``k`` with rest position ``c`` under the motions."""
+            return pair_errors(np.einsum("fij,j->fi", A[:, k], c) + b[:, k], g)
 
-        def raw(c: np.ndarray) -> float:
-            q = np.einsum("fij,j->fi", A[:, k], c) + b[:, k]
-            return float(np.linalg.norm(q - g, axis=1).mean())
+        def err(c: np.ndarray) -> float:
+            return errors(c)[1]
 
         c = jr.joints_rest[k]
         # the distance counts only the directions the motions determine well: a joint that
@@ -152,14 +150,12 @@ def decompose(syn, result) -> dict[str, float]:
         da, dr = float(d @ axis), float(d @ ray)
         rows.append((err(c), err(c_star), err(g[rest_index]), err(st.joints_rest[k]),
                      err(st.c_tilde[k]), float(np.linalg.norm(d)), da * da, dr * dr,
-                     float(d @ d) - da * da - dr * dr, raw(c), raw(g[rest_index])))
-    keys = ("actual", "oracle", "gt_rest", "step2", "ctilde", "dist", "axis", "depth",
-            "across", "raw", "raw_gt_rest")
+                     float(d @ d) - da * da - dr * dr, errors(c)[0], errors(g[rest_index])[0]))
     if not rows:
-        return {key: float("nan") for key in keys} | {"matched": 0}
+        return {key: float("nan") for key in COLUMNS} | {"matched": 0}
     m = np.mean(rows, axis=0)
     m[6:9] = np.sqrt(np.maximum(m[6:9], 0.0))
-    return dict(zip(keys, (float(v) for v in m))) | {"matched": len(rows)}
+    return dict(zip(COLUMNS, (float(v) for v in m))) | {"matched": len(rows)}
 
 
 def main(argv: list[str]) -> int:
@@ -168,12 +164,10 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--only", default="", help="comma-separated sequence names")
     a = ap.parse_args(argv)
     only = selected(ap, a.only)
-    cols = ("actual", "oracle", "gt_rest", "step2", "ctilde", "dist", "axis", "depth",
-            "across", "raw", "raw_gt_rest")
     print("normalised errors (cm) under the pipeline's motions with its rest joints (actual), "
           "the oracle's, the ground truth's at the rest frame, step 2's, c~; |c - c*| and its "
           "axis / depth / across parts; raw errors (cm) of actual and gt rest")
-    print(f"{'sequence':<16} {'matched':>7} " + " ".join(f"{c:>11}" for c in cols)
+    print(f"{'sequence':<16} {'matched':>7} " + " ".join(f"{c:>11}" for c in COLUMNS)
           + f" {'placement %':>11}")
     table = []
     for name, syn in suite(a.frames, only):
@@ -183,8 +177,8 @@ def main(argv: list[str]) -> int:
             print(f"{name:<16} {0:>7} (no joint matched)")
             continue
         share = 100.0 * (d["actual"] - d["oracle"]) / d["actual"]
-        table.append([d[c] for c in cols] + [share])
-        print(f"{name:<16} {d['matched']:>7} " + " ".join(f"{100 * d[c]:>11.2f}" for c in cols)
+        table.append([d[c] for c in COLUMNS] + [share])
+        print(f"{name:<16} {d['matched']:>7} " + " ".join(f"{100 * d[c]:>11.2f}" for c in COLUMNS)
               + f" {share:>11.0f}", flush=True)
     if table:
         m = np.mean(table, axis=0)

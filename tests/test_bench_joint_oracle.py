@@ -10,13 +10,14 @@ from scipy.spatial.transform import Rotation
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
-from bench_joint_oracle import (  # noqa: E402
-    joint_maps,
-    normalised_error,
-    oracle_rest_position,
-)
+from bench_joint_oracle import joint_maps, oracle_rest_position  # noqa: E402
 
+from pointrig.evaluate import pair_errors  # noqa: E402
 from pointrig.kinematics import joint_trajectories  # noqa: E402
+
+
+def normalised_error(q: np.ndarray, g: np.ndarray) -> float:
+    return pair_errors(q, g)[1]
 
 
 def _motions(rng: np.random.Generator, F: int, B: int) -> tuple[np.ndarray, np.ndarray]:

@@ -55,7 +55,8 @@ import numpy as np
 
 from .errors import ConfigError, InputError
 
-__all__ = ["EvalReport", "JointRow", "evaluate", "evaluate_files", "scorable_joints",
+__all__ = ["EvalReport", "JointRow", "evaluate", "evaluate_files", "pair_errors",
+           "scorable_joints",
            "subject_size", "load_prediction", "SWING_FRACTION", "DUPLICATE_FRACTION",
            "THRESHOLD_FRACTION", "SWING_SOURCES"]
 
@@ -395,6 +396,18 @@ def scorable_joints(gt_joints: np.ndarray, gt_parents: np.ndarray, *,
     return mask, reasons, swing
 
 
+
+def pair_errors(pred: np.ndarray, gt: np.ndarray) -> tuple[float, float]:
+    """Raw and normalised error (metres) of one matched pair of trajectories.
+
+    ``pred``, ``gt``: ``(F, 3)`` metres. Raw = mean over frames of ``|p_t - g_t|``; normalised
+    = the same after subtracting the pair's mean offset ``mean_t (p_t - g_t)`` (module
+    docstring)."""
+    diff = np.asarray(pred, dtype=np.float64) - np.asarray(gt, dtype=np.float64)
+    return (float(np.linalg.norm(diff, axis=1).mean()),
+            float(np.linalg.norm(diff - diff.mean(axis=0), axis=1).mean()))
+
+
 def evaluate(pred_joints: np.ndarray, gt_joints: np.ndarray, gt_parents: np.ndarray, *,
              gt_names: list[str] | None = None, pred_names: list[str] | None = None,
              surface: np.ndarray | None = None, surface_labels: np.ndarray | None = None,
@@ -479,9 +492,7 @@ def evaluate(pred_joints: np.ndarray, gt_joints: np.ndarray, gt_parents: np.ndar
             if cost[a, b] < tau:
                 j = int(cols[b])
                 matched[j] = int(a)
-                diff = p[:, a] - g[:, j]
-                raw[j] = float(np.linalg.norm(diff, axis=1).mean())
-                norm[j] = float(np.linalg.norm(diff - diff.mean(axis=0), axis=1).mean())
+                raw[j], norm[j] = pair_errors(p[:, a], g[:, j])
     n_match = int((matched >= 0).sum())
     n_sc = int(mask.sum())
     rows = [JointRow(gt_names[j], bool(mask[j]), reasons[j], int(matched[j]), float(raw[j]),
