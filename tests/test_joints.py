@@ -97,11 +97,12 @@ def _surrogate(Q, W, R, T, a, z, R_pre, T_pre, parent, joints, alpha, gamma, tra
     return e
 
 
-@pytest.mark.parametrize("mode", ["paper", "articulated"])
+@pytest.mark.parametrize("mode", ["paper", "articulated", "articulated_smooth"])
 def test_bone_sweeps_never_increase_energy(mode):
     fig = make_figure("human", n_frames=5, n_points=600, seed=3)
     st = step2_standin(fig)
     F, M = fig.registered.shape[:2]
+    B = len(fig.bone_parent)
     rng = np.random.default_rng(0)
     a = rng.uniform(0.5, 2.0, (F, M)) * 1e4
     z = np.ascontiguousarray(fig.registered)
@@ -109,9 +110,18 @@ def test_bone_sweeps_never_increase_energy(mode):
     R, T = st.R.copy(), st.T.copy()
     R_pre, T_pre = R.copy(), T.copy()
     alpha, gamma = (1e5, 0.1) if mode == "paper" else (0.0, 0.1)
+    # the temporal rotation term, one weight per bone, strong enough to matter
+    smooth = rng.uniform(0.0, 2.0, B) * 1e3 if mode == "articulated_smooth" else None
     args = (fig.rest_points, fig.weights)
-    prev = _surrogate(*args, R, T, a, z, R_pre, T_pre, fig.bone_parent, st.joints_rest, alpha,
-                      gamma, mode == "paper")
+
+    def energy(R, T):
+        e = _surrogate(*args, R, T, a, z, R_pre, T_pre, fig.bone_parent, st.joints_rest, alpha,
+                       gamma, mode == "paper")
+        if smooth is not None:
+            e += 0.5 * np.sum(smooth * np.sum((R[1:] - R[:-1]) ** 2, axis=(2, 3)))
+        return e
+
+    prev = energy(R, T)
     for _ in range(4):
         Rf, Tf = _flat(R, T)
         if mode == "paper":
@@ -121,14 +131,40 @@ def test_bone_sweeps_never_increase_energy(mode):
         else:
             Rn, Tn = _core.lbs_sweep_articulated(fig.rest_points, idx, w, Rf, Tf, a,
                                                  z.reshape(-1, 3), _flat(R_pre, T_pre)[0],
-                                                 fig.bone_parent, st.joints_rest, gamma, F)
+                                                 fig.bone_parent, st.joints_rest, gamma, F,
+                                                 smooth)
         R, T = Rn.reshape(R.shape), Tn.reshape(T.shape)
         assert np.allclose(np.einsum("fbij,fbkj->fbik", R, R), np.eye(3), atol=1e-10)
         assert np.all(np.linalg.det(R) > 0)
-        e = _surrogate(*args, R, T, a, z, R_pre, T_pre, fig.bone_parent, st.joints_rest, alpha,
-                       gamma, mode == "paper")
+        e = energy(R, T)
         assert e <= prev * (1 + 1e-10)
         prev = e
+
+
+def test_temporal_rotation_term_fills_an_occluded_frame_and_checks_its_weights():
+    """A bone whose points are unseen in one frame takes the rotation nearest the sum of its
+    neighbouring frames' (polar factor by numpy's SVD); without the term it keeps its own."""
+    fig = make_figure("human", n_frames=5, n_points=600, seed=3)
+    st = step2_standin(fig)
+    F, M = fig.registered.shape[:2]
+    B = len(fig.bone_parent)
+    leaf = int(next(k for k in range(B) if k not in set(fig.bone_parent.tolist())))
+    a = np.full((F, M), 1e4)
+    a[3, fig.weights[:, leaf] > 0] = 0.0  # frame 3 (odd: updated after its neighbours)
+    z = np.ascontiguousarray(fig.registered).reshape(-1, 3)
+    idx, w = _sparse(fig.weights, 4)
+    Rf, Tf = _flat(st.R, st.T)
+    call = (fig.rest_points, idx, w, Rf, Tf, a, z, Rf.copy(), fig.bone_parent, st.joints_rest,
+            0.0, F)
+    Rn, _ = _core.lbs_sweep_articulated(*call, np.full(B, 1e2))
+    R = Rn.reshape(F, B, 3, 3)
+    U, _, Vt = np.linalg.svd(R[2, leaf] + R[4, leaf])
+    np.testing.assert_allclose(R[3, leaf], U @ Vt, atol=1e-9)
+    R0 = _core.lbs_sweep_articulated(*call)[0].reshape(F, B, 3, 3)
+    assert np.linalg.norm(R0[3, leaf] - U @ Vt) > 1e-3  # the term made the difference
+    for bad in (np.full(B - 1, 1.0), np.full(B, -1.0), np.full(B, np.nan)):
+        with pytest.raises((ValueError, InputError)):
+            _core.lbs_sweep_articulated(*call, bad)
 
 
 def test_articulated_joint_solve_is_exact_with_true_weights_and_rotations():
@@ -150,11 +186,13 @@ def test_articulated_joint_solve_is_exact_with_true_weights_and_rotations():
 # --------------------------------------------------------------------------- the EM
 
 
-def test_noise_free_arm_joints_within_1cm():
+@pytest.mark.parametrize("smoothing", [0.0, 0.01])
+def test_noise_free_arm_joints_within_1cm(smoothing):
     fig = make_figure("arm", n_frames=12, n_points=600, n_obs=2000, obs_noise=0, reg_noise=0,
                       outliers=0, seed=1)
     st = step2_standin(fig)
-    res = learn_joints(fig.frames, fig.rest_points, fig.registered, st, JointsConfig())
+    res = learn_joints(fig.frames, fig.rest_points, fig.registered, st,
+                       JointsConfig(rotation_smoothing=smoothing))
     err = np.linalg.norm(res.joints_rest - fig.joints_rest, axis=1)[fig.bone_parent >= 0]
     assert err.max() < 0.01, err
     W = res.weights
@@ -388,7 +426,7 @@ def test_tracking_config_errors():
     for bad in (dict(init="x"), dict(track_iterations=0), dict(track_anneal=0.0),
                 dict(track_tau_max=0.0), dict(track_velocity=-1.0),
                 dict(track_predict_check=1.5), dict(track_normal_kappa=-1.0),
-                dict(normal_radius=0.0)):
+                dict(normal_radius=0.0), dict(rotation_smoothing=-0.1)):
         with pytest.raises(ConfigError):
             learn_joints(fig.frames, fig.rest_points, fig.registered, st, JointsConfig(**bad))
     with pytest.raises(InputError):

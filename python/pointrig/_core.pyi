@@ -76,9 +76,11 @@ def lbs_sweep_articulated(
     r: npt.NDArray[np.float64], t: npt.NDArray[np.float64], a: npt.NDArray[np.float64],
     z: npt.NDArray[np.float64], r_pre: npt.NDArray[np.float64],
     bone_parent: npt.NDArray[np.int64], joints: npt.NDArray[np.float64], gamma: float,
-    n_frames: int,
+    n_frames: int, smooth: npt.NDArray[np.float64] | None = None,
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-    """Joint-constrained sweep: each bone rotates about its head joint with its subtree."""
+    """Joint-constrained sweep: each bone rotates about its head joint with its subtree.
+    ``smooth (B,)`` (optional, >= 0) adds ``sum_j smooth_j/2 sum_t |R_j^t - R_j^(t+1)|_F^2``;
+    even frames are then updated before odd ones so the energy never increases."""
 def lbs_estep_frames(
     x: npt.NDArray[np.float64], v: npt.NDArray[np.float64], offsets: npt.NDArray[np.int64],
     tau: npt.NDArray[np.float64], omega: float, cutoff: float | None = None,

@@ -771,6 +771,9 @@ def learn_joints(
                           "track_tau_max > 0, track_velocity >= 0, "
                           "0 <= track_predict_check <= 1, track_normal_kappa >= 0 and "
                           "normal_radius > 0 are required")
+    if not cfg.rotation_smoothing >= 0:
+        raise ConfigError(f"joints: rotation_smoothing must be >= 0, got "
+                          f"{cfg.rotation_smoothing}")
     Q = np.ascontiguousarray(rest_points, dtype=np.float64)
     Y = np.ascontiguousarray(registered, dtype=np.float64)
     frames = [np.ascontiguousarray(v, dtype=np.float64) for v in frames]
@@ -779,6 +782,7 @@ def learn_joints(
     parent = np.asarray(structure.bone_parent, dtype=np.int64)
     B = len(parent)
     root = int(np.flatnonzero(parent < 0)[0])
+    size2 = float(np.sum((Q.max(0) - Q.min(0)) ** 2))  # squared rest bounding-box diagonal
     K = min(cfg.max_bones_per_point, B)
     c_tilde = np.asarray(structure.c_tilde, dtype=float)
     R = np.array(structure.R, dtype=float)
@@ -892,11 +896,14 @@ def learn_joints(
             joints, T = solve_joints_articulated(Q, W, R, a, z, parent, c_prior,
                                                  cfg.eta * cfg.joint_prior, T[:, root])
             t3 = time.perf_counter()
+            smooth = None
+            if cfg.rotation_smoothing > 0 and F > 1:
+                smooth = np.full(B, cfg.rotation_smoothing * float(np.mean(a)) * size2)
             for _ in range(cfg.bone_sweeps):
                 Rf, Tf = _flat_rt(R, T)
                 Rn, Tn = _core.lbs_sweep_articulated(
                     Q, idx, w, Rf, Tf, a, zf, _flat_rt(R_pre, T_pre)[0], parent, joints,
-                    cfg.gamma, F)
+                    cfg.gamma, F, smooth)
                 R, T = Rn.reshape(F, B, 3, 3), Tn.reshape(F, B, 3)
             t4 = time.perf_counter()
             joints, T = solve_joints_articulated(Q, W, R, a, z, parent, c_prior,
@@ -926,10 +933,13 @@ def learn_joints(
         nr = parent >= 0
         e_prior = float(np.sum((joints[nr] - c_tilde[nr]) ** 2))
         e_small = float(np.sum((R - R_pre) ** 2) + np.sum((T - T_pre) ** 2))
+        e_smooth = float(np.sum((R[1:] - R[:-1]) ** 2))
         if articulated:
             lam_scale = cfg.eta * cfg.joint_prior * float(np.mean(a.sum(1)))
             e_joint = lam_scale * e_prior
             total = e_gmm + 0.5 * zeta * e_reg + 0.5 * e_joint + 0.5 * cfg.gamma * e_small
+            if smooth is not None:
+                total += 0.5 * float(smooth[0]) * e_smooth
         else:
             e_joint = cfg.eta * e_prior + e_joint_cons
             total = e_gmm + 0.5 * zeta * e_reg + 0.5 * alpha * e_joint + 0.5 * cfg.gamma * e_small

@@ -669,6 +669,13 @@ pub fn sweep_paper(
 /// exactly by Lemma 1 with `gamma sum_{j in sub(b)} R_pre_j R_j^T` added to the correlation
 /// matrix (small-motion term on the rotations of every moved bone). The energy
 /// `sum a/2 |x - z|^2 + gamma/2 sum |R - R_pre|^2` never increases.
+///
+/// `smooth` (empty = off, else one weight `lambda_j >= 0` per bone) adds the temporal term
+/// `sum_j lambda_j/2 sum_t |R_j^t - R_j^(t+1)|_F^2` (our deviation, docs/joints.md "Session
+/// 29"): each moved bone's neighbouring frames enter the correlation matrix as
+/// `lambda_j (R_j^(t-1) + R_j^(t+1)) R_j^T`. The even frames are updated first (in parallel,
+/// their neighbours held), then the odd ones, so each frame's update is an exact block
+/// minimisation and the energy with this term still never increases.
 #[allow(clippy::too_many_arguments)]
 pub fn sweep_articulated(
     q: &[f64],
@@ -681,6 +688,7 @@ pub fn sweep_articulated(
     parent: &[i64],
     joints: &[f64],
     gamma: f64,
+    smooth: &[f64],
     d: Dims,
 ) -> CoreResult<()> {
     check_common(q, r, t, d)?;
@@ -690,6 +698,14 @@ pub fn sweep_articulated(
     check_len("joints", joints.len(), d.b * 3)?;
     if gamma.is_nan() || gamma < 0.0 {
         return Err(CoreError::InvalidInput("gamma must be >= 0".into()));
+    }
+    if !smooth.is_empty() {
+        check_len("smooth", smooth.len(), d.b)?;
+        if smooth.iter().any(|v| !(v.is_finite() && *v >= 0.0)) {
+            return Err(CoreError::InvalidInput(
+                "smooth weights must be finite and >= 0".into(),
+            ));
+        }
     }
     let order = topological_order(parent, d.b)?;
     let (b, m, k) = (d.b, d.m, sw.k);
@@ -714,83 +730,124 @@ pub fn sweep_articulated(
             }
         }
     }
-    r.par_chunks_mut(9 * b)
-        .zip(t.par_chunks_mut(3 * b))
-        .enumerate()
-        .for_each(|(f, (rf, tf))| {
-            let (mut rs, mut ts) = load_frame(rf, tf, b);
-            let rp: Vec<Matrix3<f64>> = (0..b)
-                .map(|j| Matrix3::from_row_slice(&r_pre[(f * b + j) * 9..(f * b + j) * 9 + 9]))
-                .collect();
-            let mut x = vec![0.0; m * 3];
-            skin_frame(q, &sw, &rs, &ts, &mut x);
-            let af = &a[f * m..(f + 1) * m];
-            let zf = &z[f * m * 3..(f + 1) * m * 3];
-            let mut pbuf: Vec<(f64, Vector3<f64>)> = Vec::with_capacity(m);
-            for &bb in &order {
-                let is_root = parent[bb] < 0;
-                let h = if is_root {
-                    Vector3::zeros()
-                } else {
-                    rs[bb] * v3(joints, bb) + ts[bb]
-                };
-                pbuf.clear();
-                let mut mo = Moments::new();
-                for &pm in &sub_points[bb] {
-                    let qm = v3(q, pm);
-                    let mut wsub = 0.0;
-                    let mut pp = Vector3::zeros();
-                    for s in 0..k {
-                        let wv = sw.w[pm * k + s];
-                        let j = sw.idx[pm * k + s];
-                        if wv > 0.0 && in_sub[bb * b + j] {
-                            wsub += wv;
-                            pp += (rs[j] * qm + ts[j]) * wv;
+    let frame_update = |f: usize, rf: &mut [f64], tf: &mut [f64], snap: &[f64]| {
+        let (mut rs, mut ts) = load_frame(rf, tf, b);
+        // sum of the neighbouring frames' rotations of each bone (temporal term)
+        let nb: Vec<Matrix3<f64>> = if smooth.is_empty() {
+            Vec::new()
+        } else {
+            (0..b)
+                .map(|j| {
+                    let mut acc = Matrix3::zeros();
+                    for g in [f.wrapping_sub(1), f + 1] {
+                        if g < d.f {
+                            let o = (g * b + j) * 9;
+                            acc += Matrix3::from_row_slice(&snap[o..o + 9]);
                         }
                     }
-                    pbuf.push((wsub, pp));
-                    let am = af[pm];
-                    if am == 0.0 || wsub <= 0.0 {
-                        continue;
+                    acc
+                })
+                .collect()
+        };
+        let rp: Vec<Matrix3<f64>> = (0..b)
+            .map(|j| Matrix3::from_row_slice(&r_pre[(f * b + j) * 9..(f * b + j) * 9 + 9]))
+            .collect();
+        let mut x = vec![0.0; m * 3];
+        skin_frame(q, &sw, &rs, &ts, &mut x);
+        let af = &a[f * m..(f + 1) * m];
+        let zf = &z[f * m * 3..(f + 1) * m * 3];
+        let mut pbuf: Vec<(f64, Vector3<f64>)> = Vec::with_capacity(m);
+        for &bb in &order {
+            let is_root = parent[bb] < 0;
+            let h = if is_root {
+                Vector3::zeros()
+            } else {
+                rs[bb] * v3(joints, bb) + ts[bb]
+            };
+            pbuf.clear();
+            let mut mo = Moments::new();
+            for &pm in &sub_points[bb] {
+                let qm = v3(q, pm);
+                let mut wsub = 0.0;
+                let mut pp = Vector3::zeros();
+                for s in 0..k {
+                    let wv = sw.w[pm * k + s];
+                    let j = sw.idx[pm * k + s];
+                    if wv > 0.0 && in_sub[bb * b + j] {
+                        wsub += wv;
+                        pp += (rs[j] * qm + ts[j]) * wv;
                     }
-                    let u = v3(&x, pm) - pp;
-                    // source p = P/W, target (z-u)/W, weight a W^2, all relative to h
-                    let src = pp / wsub - h;
-                    let om_dst = (v3(zf, pm) - u - h * wsub) * (am * wsub);
-                    mo.add_scaled(am * wsub * wsub, &src, &om_dst);
                 }
-                if mo.sw <= 0.0 {
+                pbuf.push((wsub, pp));
+                let am = af[pm];
+                if am == 0.0 || wsub <= 0.0 {
                     continue;
                 }
-                let mut small = Matrix3::zeros();
-                if gamma > 0.0 {
-                    for &j in &subtree[bb] {
-                        small += rp[j] * rs[j].transpose() * gamma;
-                    }
-                }
-                let (dr, dt) = if is_root {
-                    let (mu_q, mu_u, zmat) = mo.centred();
-                    let dr = rotation_maximizing_trace(&(zmat + small));
-                    (dr, mu_u - dr * mu_q)
-                } else {
-                    // rotation about h: maximise tr(dR^T sum om (d)(s)^T)
-                    let dr = rotation_maximizing_trace(&(mo.sds + small));
-                    (dr, h - dr * h)
-                };
+                let u = v3(&x, pm) - pp;
+                // source p = P/W, target (z-u)/W, weight a W^2, all relative to h
+                let src = pp / wsub - h;
+                let om_dst = (v3(zf, pm) - u - h * wsub) * (am * wsub);
+                mo.add_scaled(am * wsub * wsub, &src, &om_dst);
+            }
+            let mut small = Matrix3::zeros();
+            if gamma > 0.0 {
                 for &j in &subtree[bb] {
-                    rs[j] = dr * rs[j];
-                    ts[j] = dr * ts[j] + dt;
+                    small += rp[j] * rs[j].transpose() * gamma;
                 }
-                for (&pm, &(wsub, pp)) in sub_points[bb].iter().zip(&pbuf) {
-                    let u = v3(&x, pm) - pp;
-                    let xn = u + dr * pp + dt * wsub;
-                    for c in 0..3 {
-                        x[3 * pm + c] = xn[c];
+            }
+            let mut prior = false;
+            if !nb.is_empty() {
+                for &j in &subtree[bb] {
+                    if smooth[j] > 0.0 && nb[j] != Matrix3::zeros() {
+                        small += nb[j] * rs[j].transpose() * smooth[j];
+                        prior = true;
                     }
                 }
             }
-            store_frame(rf, tf, &rs, &ts);
-        });
+            // no data: only a non-root bone with the temporal term has anything to fit (an
+            // occluded limb takes the rotation between its neighbouring frames)
+            if mo.sw <= 0.0 && (is_root || !prior) {
+                continue;
+            }
+            let (dr, dt) = if is_root {
+                let (mu_q, mu_u, zmat) = mo.centred();
+                let dr = rotation_maximizing_trace(&(zmat + small));
+                (dr, mu_u - dr * mu_q)
+            } else {
+                // rotation about h: maximise tr(dR^T sum om (d)(s)^T)
+                let dr = rotation_maximizing_trace(&(mo.sds + small));
+                (dr, h - dr * h)
+            };
+            for &j in &subtree[bb] {
+                rs[j] = dr * rs[j];
+                ts[j] = dr * ts[j] + dt;
+            }
+            for (&pm, &(wsub, pp)) in sub_points[bb].iter().zip(&pbuf) {
+                let u = v3(&x, pm) - pp;
+                let xn = u + dr * pp + dt * wsub;
+                for c in 0..3 {
+                    x[3 * pm + c] = xn[c];
+                }
+            }
+        }
+        store_frame(rf, tf, &rs, &ts);
+    };
+    if smooth.is_empty() {
+        r.par_chunks_mut(9 * b)
+            .zip(t.par_chunks_mut(3 * b))
+            .enumerate()
+            .for_each(|(f, (rf, tf))| frame_update(f, rf, tf, &[]));
+    } else {
+        // even frames, then odd frames: each against a snapshot of its held neighbours
+        for parity in 0..2 {
+            let snap = r.to_vec();
+            r.par_chunks_mut(9 * b)
+                .zip(t.par_chunks_mut(3 * b))
+                .enumerate()
+                .filter(|(f, _)| f % 2 == parity)
+                .for_each(|(f, (rf, tf))| frame_update(f, rf, tf, &snap));
+        }
+    }
     Ok(())
 }
 
@@ -906,7 +963,18 @@ mod tests {
         for _ in 0..30 {
             let rp = ra.clone();
             sweep_articulated(
-                &q, sw, &mut ra, &mut ta, &a, &z, &rp, &parent, &joints, 0.0, d,
+                &q,
+                sw,
+                &mut ra,
+                &mut ta,
+                &a,
+                &z,
+                &rp,
+                &parent,
+                &joints,
+                0.0,
+                &[],
+                d,
             )
             .unwrap();
             let e = data_energy(&skin(&q, sw, &ra, &ta, d).unwrap(), &a, &z);
@@ -926,6 +994,122 @@ mod tests {
             assert!(e <= prev * (1.0 + 1e-12) + 1e-15);
             prev = e;
         }
+    }
+
+    fn smooth_energy(r: &[f64], d: Dims, lam: &[f64]) -> f64 {
+        let mut e = 0.0;
+        for fi in 1..d.f {
+            for (j, l) in lam.iter().enumerate() {
+                let o0 = ((fi - 1) * d.b + j) * 9;
+                let o1 = (fi * d.b + j) * 9;
+                let dm = Matrix3::from_row_slice(&r[o1..o1 + 9])
+                    - Matrix3::from_row_slice(&r[o0..o0 + 9]);
+                e += l * dm.norm_squared();
+            }
+        }
+        e
+    }
+
+    #[test]
+    fn temporal_term_never_increases_energy_and_fills_a_frame_without_data() {
+        let (q, r, t, idx, w, d) = chain(5);
+        let sw = SparseWeights {
+            idx: &idx,
+            w: &w,
+            k: 2,
+        };
+        let z = skin(&q, sw, &r, &t, d).unwrap();
+        let mut a = vec![1.0; d.f * d.m];
+        // frame 3 sees none of the child's points (an occluded limb)
+        for mm in 0..d.m {
+            if w[mm * 2 + 1] > 0.0 {
+                a[3 * d.m + mm] = 0.0;
+            }
+        }
+        // start from a child that spins by a different angle in every frame
+        let mut r2 = r.clone();
+        let mut t2 = t.clone();
+        let c = Vector3::new(0.5, 0.0, 0.0);
+        for fi in 0..d.f {
+            let o = fi * 18 + 9;
+            let rr = Matrix3::from_row_slice(&r2[o..o + 9]) * rot(0.3 * fi as f64, 0.2, -0.1);
+            r2[o..o + 9].copy_from_slice(rr.transpose().as_slice());
+            let r0 = Matrix3::from_row_slice(&r2[fi * 18..fi * 18 + 9]);
+            let tn = r0 * c + v3(&t2, fi * 2) - rr * c;
+            t2[fi * 6 + 3..fi * 6 + 6].copy_from_slice(tn.as_slice());
+        }
+        let joints = vec![0.0, 0.0, 0.0, 0.5, 0.0, 0.0];
+        let parent = vec![-1i64, 0];
+        let lam = vec![0.3, 0.05];
+        let total = |r: &[f64], t: &[f64]| {
+            0.5 * data_energy(&skin(&q, sw, r, t, d).unwrap(), &a, &z)
+                + 0.5 * smooth_energy(r, d, &lam)
+        };
+        let mut prev = total(&r2, &t2);
+        for _ in 0..20 {
+            let rp = r2.clone();
+            sweep_articulated(
+                &q, sw, &mut r2, &mut t2, &a, &z, &rp, &parent, &joints, 0.0, &lam, d,
+            )
+            .unwrap();
+            let e = total(&r2, &t2);
+            assert!(e <= prev * (1.0 + 1e-12) + 1e-15, "{e} > {prev}");
+            prev = e;
+        }
+        // the child of frame 3 (no data) is the rotation nearest the sum of its neighbours'
+        // (the odd frames are updated after the even ones, against their new rotations)
+        let rp = r2.clone();
+        sweep_articulated(
+            &q, sw, &mut r2, &mut t2, &a, &z, &rp, &parent, &joints, 0.0, &lam, d,
+        )
+        .unwrap();
+        let child = |fi: usize| Matrix3::from_row_slice(&r2[fi * 18 + 9..fi * 18 + 18]);
+        let sum = child(2) + child(4);
+        let svd = sum.svd(true, true);
+        let (u, vt) = (svd.u.unwrap(), svd.v_t.unwrap());
+        let polar = u * vt;
+        assert!(polar.determinant() > 0.0);
+        assert!(
+            (child(3) - polar).norm() < 1e-9,
+            "{}",
+            (child(3) - polar).norm()
+        );
+        // and still meets its parent at the joint
+        let parent3 = Matrix3::from_row_slice(&r2[54..63]);
+        let gap = parent3 * c + v3(&t2, 6) - (child(3) * c + v3(&t2, 7));
+        assert!(gap.norm() < 1e-12);
+        // the bad weights are refused
+        let rp = r2.clone();
+        assert!(sweep_articulated(
+            &q,
+            sw,
+            &mut r2,
+            &mut t2,
+            &a,
+            &z,
+            &rp,
+            &parent,
+            &joints,
+            0.0,
+            &[0.1],
+            d,
+        )
+        .is_err());
+        assert!(sweep_articulated(
+            &q,
+            sw,
+            &mut r2,
+            &mut t2,
+            &a,
+            &z,
+            &rp,
+            &parent,
+            &joints,
+            0.0,
+            &[0.1, -1.0],
+            d,
+        )
+        .is_err());
     }
 
     #[test]

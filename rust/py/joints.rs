@@ -249,7 +249,9 @@ fn lbs_sweep_paper<'py>(
 }
 
 /// Joint-constrained bone update (our deviation, docs/joints.md): returns new `(R, T)`.
+/// `smooth` (optional, one weight per bone) adds the temporal rotation term.
 #[pyfunction]
+#[pyo3(signature = (q, idx, w, r, t, a, z, r_pre, bone_parent, joints, gamma, n_frames, smooth=None))]
 #[allow(clippy::too_many_arguments, clippy::type_complexity)]
 fn lbs_sweep_articulated<'py>(
     py: Python<'py>,
@@ -265,6 +267,7 @@ fn lbs_sweep_articulated<'py>(
     joints: PyReadonlyArray2<'py, f64>,
     gamma: f64,
     n_frames: usize,
+    smooth: Option<PyReadonlyArray1<'py, f64>>,
 ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>)> {
     let s = SweepInput::new(
         py,
@@ -283,6 +286,10 @@ fn lbs_sweep_articulated<'py>(
     if !gamma.is_finite() {
         return Err(PyValueError::new_err("gamma must be finite"));
     }
+    let smooth: &[f64] = match &smooth {
+        Some(v) => flat1(py, v, "smooth")?,
+        None => &[],
+    };
     let (mut rr, mut tt) = (s.r.to_vec(), s.t.to_vec());
     py.detach(|| {
         lbs::sweep_articulated(
@@ -296,6 +303,7 @@ fn lbs_sweep_articulated<'py>(
             &s.parent,
             s.joints,
             gamma,
+            smooth,
             s.d,
         )
     })
