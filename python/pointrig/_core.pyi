@@ -79,8 +79,9 @@ def lbs_sweep_articulated(
     n_frames: int, smooth: npt.NDArray[np.float64] | None = None,
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
     """Joint-constrained sweep: each bone rotates about its head joint with its subtree.
-    ``smooth (B,)`` (optional, >= 0) adds ``sum_j smooth_j/2 sum_t |R_j^t - R_j^(t+1)|_F^2``;
-    even frames are then updated before odd ones so the energy never increases."""
+    ``smooth (B,)`` (optional, >= 0) adds
+    ``sum_j smooth_j/2 sum_t |R_j^(t-1) - 2 R_j^t + R_j^(t+1)|_F^2`` (second differences); the
+    frames ``t mod 3 = 0, 1, 2`` are then updated in turn so the energy never increases."""
 def lbs_estep_frames(
     x: npt.NDArray[np.float64], v: npt.NDArray[np.float64], offsets: npt.NDArray[np.int64],
     tau: npt.NDArray[np.float64], omega: float, cutoff: float | None = None,

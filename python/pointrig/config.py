@@ -385,12 +385,12 @@ class JointsConfig:
     min_iterations: int = 3
     bone_sweeps: int = 1  # bone-update sweeps per M-step (Eqs. 23-26)
     # temporal rotation prior (our deviation, docs/joints.md "Session 29"; articulated mode):
-    # adds lambda/2 sum_t |R_j^t - R_j^(t+1)|_F^2 for every bone, lambda = rotation_smoothing
-    # x mean(a) x size^2 (a = the data term's per-point weight, size = rest bounding-box
-    # diagonal): worth that many rest points at the subject's size from the joint, so it
-    # decides only the rotations the data leave free (small, near-planar bones, which
-    # otherwise spin by tens of degrees per frame). 0 = off (the paper)
-    rotation_smoothing: float = 0.0
+    # adds lambda/2 sum_t |R_j^(t-1) - 2 R_j^t + R_j^(t+1)|_F^2 for every bone (second
+    # differences: a steady turn is free), lambda = rotation_smoothing x mean(a) x size^2 (a =
+    # the data term's per-point weight, size = rest bounding-box diagonal), so it decides only
+    # the rotations the data leave free (small, near-planar bones, which otherwise spin by tens
+    # of degrees per frame). 0 = off (the paper)
+    rotation_smoothing: float = 0.01
     # --- initial bone transforms (our deviation, docs/joints.md session 14) ---
     # "track": before the EM, step 2's skeleton is tracked through the observed frames, frame
     # by frame outwards from the rest frame (constant-velocity prediction, coarse-to-fine

@@ -897,7 +897,7 @@ def learn_joints(
                                                  cfg.eta * cfg.joint_prior, T[:, root])
             t3 = time.perf_counter()
             smooth = None
-            if cfg.rotation_smoothing > 0 and F > 1:
+            if cfg.rotation_smoothing > 0 and F > 2:
                 smooth = np.full(B, cfg.rotation_smoothing * float(np.mean(a)) * size2)
             for _ in range(cfg.bone_sweeps):
                 Rf, Tf = _flat_rt(R, T)
@@ -933,7 +933,7 @@ def learn_joints(
         nr = parent >= 0
         e_prior = float(np.sum((joints[nr] - c_tilde[nr]) ** 2))
         e_small = float(np.sum((R - R_pre) ** 2) + np.sum((T - T_pre) ** 2))
-        e_smooth = float(np.sum((R[1:] - R[:-1]) ** 2))
+        e_smooth = float(np.sum((R[2:] - 2 * R[1:-1] + R[:-2]) ** 2))
         if articulated:
             lam_scale = cfg.eta * cfg.joint_prior * float(np.mean(a.sum(1)))
             e_joint = lam_scale * e_prior

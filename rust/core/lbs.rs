@@ -671,10 +671,12 @@ pub fn sweep_paper(
 /// `sum a/2 |x - z|^2 + gamma/2 sum |R - R_pre|^2` never increases.
 ///
 /// `smooth` (empty = off, else one weight `lambda_j >= 0` per bone) adds the temporal term
-/// `sum_j lambda_j/2 sum_t |R_j^t - R_j^(t+1)|_F^2` (our deviation, docs/joints.md "Session
-/// 29"): each moved bone's neighbouring frames enter the correlation matrix as
-/// `lambda_j (R_j^(t-1) + R_j^(t+1)) R_j^T`. The even frames are updated first (in parallel,
-/// their neighbours held), then the odd ones, so each frame's update is an exact block
+/// `sum_j lambda_j/2 sum_t |R_j^(t-1) - 2 R_j^t + R_j^(t+1)|_F^2` (our deviation,
+/// docs/joints.md "Session 29"): the rotations' second differences, so a bone turning at a
+/// steady rate pays nothing. With `|R|_F^2 = 3` the term is linear in each frame's rotation:
+/// in the interior, `lambda_j (4 (R^(t-1) + R^(t+1)) - R^(t-2) - R^(t+2)) R_j^T` enters the
+/// correlation matrix of each moved bone. The frames `t mod 3 = 0, 1, 2` are updated in turn
+/// (each pass in parallel, the other frames held), so each frame's update is an exact block
 /// minimisation and the energy with this term still never increases.
 #[allow(clippy::too_many_arguments)]
 pub fn sweep_articulated(
@@ -732,18 +734,29 @@ pub fn sweep_articulated(
     }
     let frame_update = |f: usize, rf: &mut [f64], tf: &mut [f64], snap: &[f64]| {
         let (mut rs, mut ts) = load_frame(rf, tf, b);
-        // sum of the neighbouring frames' rotations of each bone (temporal term)
+        // the temporal term's coefficient of each bone's rotation in this frame: the second
+        // differences centred at f - 1, f and f + 1 that exist, each linear in R_f (|R_f|^2 is
+        // constant), give 2 (R_(f-1) + R_(f+1)), 2 R_(f-1) - R_(f-2) and 2 R_(f+1) - R_(f+2)
         let nb: Vec<Matrix3<f64>> = if smooth.is_empty() {
             Vec::new()
         } else {
+            let fi = f as i64;
+            let n = d.f as i64;
+            let at = |g: i64, j: usize| {
+                let o = (g as usize * b + j) * 9;
+                Matrix3::from_row_slice(&snap[o..o + 9])
+            };
             (0..b)
                 .map(|j| {
                     let mut acc = Matrix3::zeros();
-                    for g in [f.wrapping_sub(1), f + 1] {
-                        if g < d.f {
-                            let o = (g * b + j) * 9;
-                            acc += Matrix3::from_row_slice(&snap[o..o + 9]);
-                        }
+                    if fi >= 1 && fi + 1 < n {
+                        acc += (at(fi - 1, j) + at(fi + 1, j)) * 2.0;
+                    }
+                    if fi >= 2 {
+                        acc += at(fi - 1, j) * 2.0 - at(fi - 2, j);
+                    }
+                    if fi + 2 < n {
+                        acc += at(fi + 1, j) * 2.0 - at(fi + 2, j);
                     }
                     acc
                 })
@@ -838,13 +851,14 @@ pub fn sweep_articulated(
             .enumerate()
             .for_each(|(f, (rf, tf))| frame_update(f, rf, tf, &[]));
     } else {
-        // even frames, then odd frames: each against a snapshot of its held neighbours
-        for parity in 0..2 {
+        // frames t mod 3 = 0, 1, 2 in turn: a second difference couples frames at most two
+        // apart, so the frames of one pass are independent given the held others
+        for colour in 0..3 {
             let snap = r.to_vec();
             r.par_chunks_mut(9 * b)
                 .zip(t.par_chunks_mut(3 * b))
                 .enumerate()
-                .filter(|(f, _)| f % 2 == parity)
+                .filter(|(f, _)| f % 3 == colour)
                 .for_each(|(f, (rf, tf))| frame_update(f, rf, tf, &snap));
         }
     }
@@ -997,13 +1011,14 @@ mod tests {
     }
 
     fn smooth_energy(r: &[f64], d: Dims, lam: &[f64]) -> f64 {
+        let at = |fi: usize, j: usize| {
+            let o = (fi * d.b + j) * 9;
+            Matrix3::from_row_slice(&r[o..o + 9])
+        };
         let mut e = 0.0;
-        for fi in 1..d.f {
+        for fi in 1..d.f - 1 {
             for (j, l) in lam.iter().enumerate() {
-                let o0 = ((fi - 1) * d.b + j) * 9;
-                let o1 = (fi * d.b + j) * 9;
-                let dm = Matrix3::from_row_slice(&r[o1..o1 + 9])
-                    - Matrix3::from_row_slice(&r[o0..o0 + 9]);
+                let dm = at(fi - 1, j) - at(fi, j) * 2.0 + at(fi + 1, j);
                 e += l * dm.norm_squared();
             }
         }
@@ -1012,7 +1027,7 @@ mod tests {
 
     #[test]
     fn temporal_term_never_increases_energy_and_fills_a_frame_without_data() {
-        let (q, r, t, idx, w, d) = chain(5);
+        let (q, r, t, idx, w, d) = chain(8);
         let sw = SparseWeights {
             idx: &idx,
             w: &w,
@@ -1020,10 +1035,10 @@ mod tests {
         };
         let z = skin(&q, sw, &r, &t, d).unwrap();
         let mut a = vec![1.0; d.f * d.m];
-        // frame 3 sees none of the child's points (an occluded limb)
+        // frame 5 sees none of the child's points (an occluded limb)
         for mm in 0..d.m {
             if w[mm * 2 + 1] > 0.0 {
-                a[3 * d.m + mm] = 0.0;
+                a[5 * d.m + mm] = 0.0;
             }
         }
         // start from a child that spins by a different angle in every frame
@@ -1056,27 +1071,27 @@ mod tests {
             assert!(e <= prev * (1.0 + 1e-12) + 1e-15, "{e} > {prev}");
             prev = e;
         }
-        // the child of frame 3 (no data) is the rotation nearest the sum of its neighbours'
-        // (the odd frames are updated after the even ones, against their new rotations)
+        // the child of frame 5 (no data; 5 mod 3 = 2, the last pass, so against its
+        // neighbours' new rotations) is the rotation nearest 4 (R4 + R6) - R3 - R7
         let rp = r2.clone();
         sweep_articulated(
             &q, sw, &mut r2, &mut t2, &a, &z, &rp, &parent, &joints, 0.0, &lam, d,
         )
         .unwrap();
         let child = |fi: usize| Matrix3::from_row_slice(&r2[fi * 18 + 9..fi * 18 + 18]);
-        let sum = child(2) + child(4);
+        let sum = (child(4) + child(6)) * 4.0 - child(3) - child(7);
         let svd = sum.svd(true, true);
         let (u, vt) = (svd.u.unwrap(), svd.v_t.unwrap());
         let polar = u * vt;
         assert!(polar.determinant() > 0.0);
         assert!(
-            (child(3) - polar).norm() < 1e-9,
+            (child(5) - polar).norm() < 1e-9,
             "{}",
-            (child(3) - polar).norm()
+            (child(5) - polar).norm()
         );
         // and still meets its parent at the joint
-        let parent3 = Matrix3::from_row_slice(&r2[54..63]);
-        let gap = parent3 * c + v3(&t2, 6) - (child(3) * c + v3(&t2, 7));
+        let parent5 = Matrix3::from_row_slice(&r2[90..99]);
+        let gap = parent5 * c + v3(&t2, 10) - (child(5) * c + v3(&t2, 11));
         assert!(gap.norm() < 1e-12);
         // the bad weights are refused
         let rp = r2.clone();
