@@ -5,8 +5,8 @@ Without the term, step 3 leaves the rotations of small, near-planar bones (a han
 blend piece at a joint: tens of points) to data that hardly determine them; they turn by tens
 of degrees per frame, up to 180, where the rig's bones turn by at most 10-25 (docs/joints.md,
 "Session 28"). An animation viewer (the exported ``skeleton.glb`` / ``.bvh``) shows them as
-spinning bones. The term ``lambda/2 sum_t |R_j^t - R_j^(t+1)|_F^2`` (``lambda =
-rotation_smoothing x mean(a) x size^2``, docs/joints.md "Session 29") lets the data decide
+spinning bones. The term ``lambda/2 sum_t |R_j^(t-1) - 2 R_j^t + R_j^(t+1)|_F^2`` (``lambda
+= rotation_smoothing x mean(a) x size^2``, docs/joints.md "Session 29") lets the data decide
 where they can.
 
 For each of the 14 sequences of ``bench_refine.py`` (100 frames; the glTF rigs need

@@ -33,6 +33,7 @@ def main(argv: list[str] | None = None) -> int:
         ["bench_render.py"],
         ["bench_refine.py", "--frames", frames],
         ["bench_joint_oracle.py", "--frames", frames],
+        ["bench_bone_spin.py", "--frames", frames],
     ]
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(
