@@ -916,6 +916,27 @@ mod tests {
         (q, r, t, idx, w, Dims { f, m, b: 2 })
     }
 
+    /// The chain's transforms with the child turned by `turn(frame)` (right-multiplied) and
+    /// moved so that it still meets the parent at the joint (0.5, 0, 0).
+    fn turn_child(
+        r: &[f64],
+        t: &[f64],
+        d: Dims,
+        turn: impl Fn(usize) -> Matrix3<f64>,
+    ) -> (Vec<f64>, Vec<f64>) {
+        let (mut r2, mut t2) = (r.to_vec(), t.to_vec());
+        let c = Vector3::new(0.5, 0.0, 0.0);
+        for fi in 0..d.f {
+            let o = fi * 18 + 9;
+            let rr = Matrix3::from_row_slice(&r2[o..o + 9]) * turn(fi);
+            r2[o..o + 9].copy_from_slice(rr.transpose().as_slice()); // row-major
+            let r0 = Matrix3::from_row_slice(&r2[fi * 18..fi * 18 + 9]);
+            let tn = r0 * c + v3(&t2, fi * 2) - rr * c;
+            t2[fi * 6 + 3..fi * 6 + 6].copy_from_slice(tn.as_slice());
+        }
+        (r2, t2)
+    }
+
     fn data_energy(x: &[f64], a: &[f64], z: &[f64]) -> f64 {
         (0..a.len())
             .map(|i| a[i] * (v3(x, i) - v3(z, i)).norm_squared())
@@ -953,22 +974,7 @@ mod tests {
         let z = skin(&q, sw, &r, &t, d).unwrap();
         let a = vec![1.0; d.f * d.m];
         // perturb the child's rotation
-        let mut r2 = r.clone();
-        let mut t2 = t.clone();
-        for fi in 0..d.f {
-            let o = fi * 18 + 9;
-            let rr = Matrix3::from_row_slice(&r2[o..o + 9]) * rot(0.05, -0.04, 0.1);
-            for a_ in 0..3 {
-                for b_ in 0..3 {
-                    r2[o + 3 * a_ + b_] = rr[(a_, b_)];
-                }
-            }
-            // keep the chain consistent: the child still meets the parent at the joint
-            let r0 = Matrix3::from_row_slice(&r2[fi * 18..fi * 18 + 9]);
-            let c = Vector3::new(0.5, 0.0, 0.0);
-            let tn = r0 * c + v3(&t2, fi * 2) - rr * c;
-            t2[fi * 6 + 3..fi * 6 + 6].copy_from_slice(tn.as_slice());
-        }
+        let (r2, t2) = turn_child(&r, &t, d, |_| rot(0.05, -0.04, 0.1));
         let joints = vec![0.0, 0.0, 0.0, 0.5, 0.0, 0.0];
         let parent = vec![-1i64, 0];
         let e0 = data_energy(&skin(&q, sw, &r2, &t2, d).unwrap(), &a, &z);
@@ -1042,17 +1048,8 @@ mod tests {
             }
         }
         // start from a child that spins by a different angle in every frame
-        let mut r2 = r.clone();
-        let mut t2 = t.clone();
+        let (mut r2, mut t2) = turn_child(&r, &t, d, |fi| rot(0.3 * fi as f64, 0.2, -0.1));
         let c = Vector3::new(0.5, 0.0, 0.0);
-        for fi in 0..d.f {
-            let o = fi * 18 + 9;
-            let rr = Matrix3::from_row_slice(&r2[o..o + 9]) * rot(0.3 * fi as f64, 0.2, -0.1);
-            r2[o..o + 9].copy_from_slice(rr.transpose().as_slice());
-            let r0 = Matrix3::from_row_slice(&r2[fi * 18..fi * 18 + 9]);
-            let tn = r0 * c + v3(&t2, fi * 2) - rr * c;
-            t2[fi * 6 + 3..fi * 6 + 6].copy_from_slice(tn.as_slice());
-        }
         let joints = vec![0.0, 0.0, 0.0, 0.5, 0.0, 0.0];
         let parent = vec![-1i64, 0];
         let lam = vec![0.3, 0.05];
@@ -1060,24 +1057,21 @@ mod tests {
             0.5 * data_energy(&skin(&q, sw, r, t, d).unwrap(), &a, &z)
                 + 0.5 * smooth_energy(r, d, &lam)
         };
+        // one sweep with the temporal weights `l`, R_pre = the current rotations
+        let sweep = |r: &mut Vec<f64>, t: &mut Vec<f64>, l: &[f64]| {
+            let rp = r.clone();
+            sweep_articulated(&q, sw, r, t, &a, &z, &rp, &parent, &joints, 0.0, l, d)
+        };
         let mut prev = total(&r2, &t2);
         for _ in 0..20 {
-            let rp = r2.clone();
-            sweep_articulated(
-                &q, sw, &mut r2, &mut t2, &a, &z, &rp, &parent, &joints, 0.0, &lam, d,
-            )
-            .unwrap();
+            sweep(&mut r2, &mut t2, &lam).unwrap();
             let e = total(&r2, &t2);
             assert!(e <= prev * (1.0 + 1e-12) + 1e-15, "{e} > {prev}");
             prev = e;
         }
         // the child of frame 5 (no data; 5 mod 3 = 2, the last pass, so against its
         // neighbours' new rotations) is the rotation nearest 4 (R4 + R6) - R3 - R7
-        let rp = r2.clone();
-        sweep_articulated(
-            &q, sw, &mut r2, &mut t2, &a, &z, &rp, &parent, &joints, 0.0, &lam, d,
-        )
-        .unwrap();
+        sweep(&mut r2, &mut t2, &lam).unwrap();
         let child = |fi: usize| Matrix3::from_row_slice(&r2[fi * 18 + 9..fi * 18 + 18]);
         let sum = (child(4) + child(6)) * 4.0 - child(3) - child(7);
         let svd = sum.svd(true, true);
@@ -1094,37 +1088,8 @@ mod tests {
         let gap = parent5 * c + v3(&t2, 10) - (child(5) * c + v3(&t2, 11));
         assert!(gap.norm() < 1e-12);
         // the bad weights are refused
-        let rp = r2.clone();
-        assert!(sweep_articulated(
-            &q,
-            sw,
-            &mut r2,
-            &mut t2,
-            &a,
-            &z,
-            &rp,
-            &parent,
-            &joints,
-            0.0,
-            &[0.1],
-            d,
-        )
-        .is_err());
-        assert!(sweep_articulated(
-            &q,
-            sw,
-            &mut r2,
-            &mut t2,
-            &a,
-            &z,
-            &rp,
-            &parent,
-            &joints,
-            0.0,
-            &[0.1, -1.0],
-            d,
-        )
-        .is_err());
+        assert!(sweep(&mut r2, &mut t2, &[0.1]).is_err());
+        assert!(sweep(&mut r2, &mut t2, &[0.1, -1.0]).is_err());
     }
 
     #[test]
