@@ -447,11 +447,28 @@ def test_tracking_config_errors():
     for bad in (dict(init="x"), dict(track_iterations=0), dict(track_anneal=0.0),
                 dict(track_tau_max=0.0), dict(track_velocity=-1.0),
                 dict(track_predict_check=1.5), dict(track_normal_kappa=-1.0),
-                dict(normal_radius=0.0), dict(rotation_smoothing=-0.1)):
+                dict(normal_radius=0.0), dict(rotation_smoothing=-0.1),
+                dict(max_iterations=-1), dict(max_iterations=2.5)):
         with pytest.raises(ConfigError):
             learn_joints(fig.frames, fig.rest_points, fig.registered, st, JointsConfig(**bad))
     with pytest.raises(InputError):
         learn_joints(fig.frames, fig.rest_points, fig.registered, st, rest_index=3)
+
+
+def test_zero_iterations_return_the_tracked_step2_skeleton():
+    """``max_iterations = 0``: no EM, step 2's joints and one-hot weights under the tracked
+    motions (it crashed before session 30). Oracle: the tracker called on its own."""
+    fig = make_figure("arm", n_frames=6, n_points=300, n_obs=600, seed=1)
+    st = step2_standin(fig)
+    cfg = JointsConfig(max_iterations=0, track_normal_kappa=0.0)  # the tracker alone
+    res = learn_joints(fig.frames, fig.rest_points, fig.registered, st, cfg, rest_index=0)
+    R, T = track_bones(subsample_frames(fig.frames, cfg.estep_max_points), fig.rest_points, st,
+                       0, cfg)
+    np.testing.assert_allclose(res.R, R, atol=1e-12)
+    np.testing.assert_allclose(res.T, T, atol=1e-12)
+    np.testing.assert_array_equal(res.joints_rest, st.joints_rest)
+    np.testing.assert_array_equal(np.argmax(res.weights, axis=1), st.labels)
+    assert res.energy == [] and res.diagnostics["iterations"] == 0
 
 
 def test_tracking_reports_progress_per_frame():

@@ -353,7 +353,7 @@ class JointsConfig:
     max_bones_per_point: int = 4  # sparsity of W, ||W_m.||_0 <= 4 (Eq. 21b)
     tau_init: float = 6e-4  # initial tau^t, m^2 (§7.2)
     tau_min: float = 1e-6  # floor on tau^t, m^2 (keeps Eq. 18 finite on noise-free data)
-    max_iterations: int = 20  # Algorithm 2 stops after 20 iterations (§6.4)
+    max_iterations: int = 20  # Algorithm 2 stops after 20 iterations (§6.4); 0 = no EM
     tolerance: float = 1e-5  # ... or when |dE_Total| / |E_Total| (Eq. 21a) falls below this
     # --- deviations from the paper (docs/joints.md); "paper" restores Algorithm 2 exactly ---
     mode: str = "articulated"  # "articulated" (ours) or "paper" (Eqs. 23-26 + Eq. 20)

@@ -771,6 +771,10 @@ def learn_joints(
                           "track_tau_max > 0, track_velocity >= 0, "
                           "0 <= track_predict_check <= 1, track_normal_kappa >= 0 and "
                           "normal_radius > 0 are required")
+    if isinstance(cfg.max_iterations, bool) or not isinstance(cfg.max_iterations, int) \
+            or cfg.max_iterations < 0:
+        raise ConfigError(f"joints: max_iterations must be an integer >= 0 (0 = step 2's "
+                          f"skeleton as tracked, no EM), got {cfg.max_iterations!r}")
     if not cfg.rotation_smoothing >= 0:
         raise ConfigError(f"joints: rotation_smoothing must be >= 0, got "
                           f"{cfg.rotation_smoothing}")
@@ -964,7 +968,7 @@ def learn_joints(
             break
         prev_total = total
     diag.pop("_prev_joints", None)
-    if not cfg.update_weights and cfg.final_weights:
+    if it > 0 and not cfg.update_weights and cfg.final_weights:
         # blend weights for the output only (Eq. 22 once, with the last data term)
         Rf, Tf = _flat_rt(R, T)
         idx, w, _ = _core.lbs_fit_weights(Q, Rf, Tf, a, zf, F, K, allowed)
