@@ -146,6 +146,12 @@ class RegistrationConfig:
     sor_neighbors: int = 20  # rest surface: statistical outlier removal, k
     sor_std_ratio: float = 2.0  # rest surface: keep mean k-NN distance < mean + ratio * std
     mls_neighbors: int = 16  # rest surface: MLS (local plane) projection neighbours (0 = off)
+    # rest surface, after the outlier removal: drop points whose rest_sparse_neighbors-th
+    # neighbour lies farther than rest_sparse_ratio x the median of that distance (flying
+    # pixels and outliers, which farthest-point sampling otherwise picks first;
+    # docs/registration.md "Session 30"); 0 = off (before session 30)
+    rest_sparse_neighbors: int = 10
+    rest_sparse_ratio: float = 4.0
     # refinement from the skeleton (our deviation, docs/registration.md "Session 26"): after
     # step 3, every frame is registered again on its own, starting from the rest points posed
     # by step 3's tracked skeleton (no frame-to-frame chain), and steps 2-3 run again on that

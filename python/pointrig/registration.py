@@ -264,6 +264,12 @@ def _validate(config: RegistrationConfig, n_frames: int) -> None:
         raise ConfigError("[registration] sigma^2 parameters must be positive")
     if config.max_iterations < 1 or config.n_rest_points < 10:
         raise ConfigError("[registration] max_iterations >= 1 and n_rest_points >= 10 required")
+    if config.rest_sparse_neighbors < 1 or not (config.rest_sparse_ratio == 0
+                                                 or config.rest_sparse_ratio > 1):
+        raise ConfigError(
+            "[registration] rest_sparse_neighbors must be >= 1 and rest_sparse_ratio 0 (off) "
+            f"or > 1, got {config.rest_sparse_neighbors!r}, {config.rest_sparse_ratio!r}"
+        )
     if not 0.0 <= config.predict_check <= 1.0:
         raise ConfigError(
             "[registration] predict_check must be in [0, 1] (0 = always start from the "
@@ -381,6 +387,8 @@ def register_sequence(
         sor_std_ratio=config.sor_std_ratio,
         mls_neighbors=config.mls_neighbors,
         seed=config.seed,
+        sparse_neighbors=config.rest_sparse_neighbors,
+        sparse_ratio=config.rest_sparse_ratio,
     )
     graph, g, kw, normal_radius = _frame_setup(rest, seq.frames[rf], config)
     j = len(graph.nodes)
