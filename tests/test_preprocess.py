@@ -1,16 +1,24 @@
-"""The rest surface's clean-up: sparse points (flying pixels, outliers) go, the subject stays."""
+"""Sparse points (flying pixels, outliers) go, the subject stays: in the rest surface and in
+every input frame."""
 
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from pointrig.config import RegistrationConfig
-from pointrig.errors import ConfigError
-from pointrig.preprocess import remove_sparse_points, remove_statistical_outliers, rest_surface
+from pointrig.config import PipelineConfig, PreprocessConfig, RegistrationConfig
+from pointrig.errors import ConfigError, EmptyFrameError
+from pointrig.pipeline import extract
+from pointrig.preprocess import (
+    remove_sparse_frames,
+    remove_sparse_points,
+    remove_statistical_outliers,
+    rest_surface,
+)
 from pointrig.registration import register_sequence
 from pointrig.sequence import PointSequence
 from pointrig.synth import Camera, NoiseConfig, synthesize
@@ -72,3 +80,62 @@ def test_rest_sparse_parameters_are_validated() -> None:
                {"rest_sparse_neighbors": 0}):
         with pytest.raises(ConfigError, match="rest_sparse"):
             register_sequence(seq, dataclasses.replace(RegistrationConfig(), **kw))
+
+
+def _kth_distance_oracle(points: np.ndarray, k: int) -> np.ndarray:
+    """Brute force: each point's distance to its ``k``-th nearest other point, ``(N,)``."""
+    d = np.linalg.norm(points[:, None] - points[None], axis=-1)
+    return np.sort(d, axis=1)[:, k]
+
+
+def test_every_frame_is_cleaned_as_the_brute_force_rule_says() -> None:
+    frames = [_plane_with_curtain(seed)[0][::3] for seed in range(3)]
+    seq = PointSequence(frames, source="mem.npz", fmt="npz")
+    out, removed = remove_sparse_frames(seq, 6, 3.0)
+    assert out.source == seq.source and out.fmt == "npz" and out.names == seq.names
+    for pts, kept, frac in zip(frames, out.frames, removed, strict=True):
+        dk = _kth_distance_oracle(pts, 6)
+        np.testing.assert_array_equal(kept, pts[dk <= 3.0 * np.median(dk)])
+        assert frac == pytest.approx(1 - len(kept) / len(pts)) and 0 < frac < 0.2
+    same, none = remove_sparse_frames(seq, 6, 0.0)
+    assert same is seq and not none.any()
+
+
+def test_a_frame_left_nearly_empty_is_an_error_naming_it() -> None:
+    rng = np.random.default_rng(0)
+    blob = rng.normal(size=(60, 3)) * 0.01 + [0, 0, 2]  # 60 close points ...
+    scatter = rng.uniform(-1, 1, (40, 3)) + [0, 0, 2]  # ... and 40 far apart: these go
+    seq = PointSequence([np.vstack([blob, blob + 0.001]), np.vstack([blob, scatter])],
+                        source="rec.ply")
+    assert [len(f) for f in remove_sparse_frames(seq, 5, 4.0)[0].frames] == [120, 60]
+    with pytest.raises(EmptyFrameError, match=r"rec\.ply: frame 1: only 60 .*sparse_ratio = 0"):
+        remove_sparse_frames(seq, 5, 4.0, min_points=70)
+
+
+def test_extract_uses_the_cleaned_frames_and_records_both_counts(tmp_path) -> None:
+    """A Kinect human with 2 % outliers: extract removes them from every frame (the counts in
+    skeleton.json), and ``sparse_ratio = 0`` leaves the input as it is."""
+    noise = dataclasses.replace(NoiseConfig(seed=3), outliers=0.02)
+    syn = synthesize("arm", n_frames=4, seed=1, camera=Camera.kinect(320), noise=noise)
+    seq = syn.to_point_sequence()
+    cfg = PipelineConfig()
+    res = extract(seq, cfg, tmp_path / "on", stop_after="structure", pictures=False)
+    used = [len(f) for f in remove_sparse_frames(seq, 10, 4.0)[0].frames]
+    doc = json.loads((tmp_path / "on" / "skeleton.json").read_text())
+    assert doc["source"]["points_per_frame"] == [len(f) for f in seq.frames]
+    assert doc["source"]["points_used_per_frame"] == used
+    assert doc["params"]["preprocess"]["sparse_ratio"] == 4.0
+    np.testing.assert_allclose(res.sparse_removed, 1 - np.array(used) / seq.counts)
+    assert (res.sparse_removed > 0.01).all()  # at least half of the 2 % outliers go
+    off = dataclasses.replace(cfg, preprocess=PreprocessConfig(sparse_ratio=0))
+    res0 = extract(seq, off, None, stop_after="registration")
+    assert not res0.sparse_removed.any()
+    assert res0.registration.key != res.registration.key  # a different input for step 1
+
+
+@pytest.mark.parametrize("kw", [{"sparse_ratio": 1.0}, {"sparse_ratio": -2.0},
+                                {"sparse_ratio": float("inf")}, {"sparse_neighbors": 0},
+                                {"sparse_neighbors": 2.5}, {"sparse_ratio": "4"}])
+def test_frame_sparse_parameters_are_checked_when_the_config_is_made(kw) -> None:
+    with pytest.raises(ConfigError, match=r"\[preprocess\] sparse_"):
+        PreprocessConfig(**kw)

@@ -69,9 +69,23 @@ class PreprocessConfig:
     # by hand: crop_min / crop_max)
     background: str = "auto"
     background_threshold: float = 0.03  # RANSAC inlier distance of the plane search, metres
+    # every frame, at the start of extract (all three steps see the result): drop points whose
+    # sparse_neighbors-th neighbour lies farther than sparse_ratio x the median of that distance
+    # in the frame: flying pixels behind silhouette edges and scattered outliers, which the
+    # GMM's uniform term only down-weights (pointrig.preprocess.remove_sparse_frames,
+    # docs/registration.md "Session 31"). 0 = off (the paper: the points as captured)
+    sparse_neighbors: int = 10
+    sparse_ratio: float = 4.0
 
     def __post_init__(self) -> None:
         _check_choices(self, "preprocess", {"background": ("auto", "keep")})
+        k, r = self.sparse_neighbors, self.sparse_ratio
+        if isinstance(k, bool) or not isinstance(k, int) or k < 1 \
+                or isinstance(r, bool) or not isinstance(r, numbers.Real) \
+                or not (r == 0 or 1 < r < float("inf")):
+            raise ConfigError(
+                "[preprocess] sparse_neighbors must be an integer >= 1 and sparse_ratio 0 (off) "
+                f"or a finite number > 1, got {k!r}, {r!r}")
 
 
 @dataclass(frozen=True)

@@ -53,6 +53,9 @@ class ExtractResult:
     #: the last :func:`pointrig.registration.refine_registration` result (``refine_rounds``
     #: > 0 and step 3 run), else ``None``
     refined_registration: Any = None
+    #: ``(F,)`` fraction of each input frame's points removed as sparse before step 1
+    #: (``[preprocess] sparse_ratio``)
+    sparse_removed: np.ndarray | None = None
 
 
 def _tree_order(bone_parent: np.ndarray) -> np.ndarray:
@@ -140,10 +143,22 @@ def extract(
     from . import registration as reg_mod
     from . import structure as struct_mod
 
+    from .preprocess import remove_sparse_frames
+
     config = config or PipelineConfig()
     check_units(seq, config.preprocess.max_extent)
     out = None if out_dir is None else Path(out_dir)
     timings: dict[str, float] = {}
+    n_input = [int(c) for c in seq.counts]
+
+    # ---- input clean-up: sparse points (flying pixels, outliers) out of every frame -----
+    t0 = time.perf_counter()
+    seq, removed = remove_sparse_frames(seq, config.preprocess.sparse_neighbors,
+                                        config.preprocess.sparse_ratio)
+    timings["clean-up"] = time.perf_counter() - t0
+    if removed.any():
+        log.info("removed %.1f %% of the points as sparse (most %.1f %%, frame %d)",
+                 100 * removed.mean(), 100 * removed.max(), int(np.argmax(removed)))
 
     def report(step: str) -> Callable[[int, int], None]:
         return lambda done, total: progress(step, done, total, "") if progress else None
@@ -166,7 +181,8 @@ def extract(
         if ckpt is not None:
             reg.save(ckpt)
     timings["registration"] = time.perf_counter() - t0
-    result = ExtractResult(None, reg, timings=timings, reused_registration=reused)
+    result = ExtractResult(None, reg, timings=timings, reused_registration=reused,
+                           sparse_removed=removed)
     if ckpt is not None:
         result.files["registration"] = ckpt
     if stop_after == "registration":
@@ -222,7 +238,8 @@ def extract(
 
     if out is not None:
         source = {"input": str(seq.source), "format": seq.fmt, "frames": len(seq),
-                  "points_per_frame": [int(c) for c in seq.counts],
+                  "points_per_frame": n_input,
+                  "points_used_per_frame": [int(c) for c in seq.counts],
                   "stopped_after": stop_after}
         params = config.to_dict()
         params["timings_s"] = {k: round(v, 3) for k, v in timings.items()}

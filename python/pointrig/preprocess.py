@@ -25,6 +25,7 @@ if TYPE_CHECKING:
 __all__ = [
     "remove_statistical_outliers",
     "remove_sparse_points",
+    "remove_sparse_frames",
     "mls_project",
     "farthest_point_sampling",
     "chamfer_misfit",
@@ -90,6 +91,47 @@ def remove_sparse_points(points: np.ndarray, k: int = 10, ratio: float = 4.0) ->
         return points.copy()
     dk = cKDTree(points).query(points, k=k + 1)[0][:, -1]
     return points[dk <= ratio * np.median(dk)]
+
+
+def remove_sparse_frames(seq: "PointSequence", k: int = 10, ratio: float = 4.0,
+                         min_points: int = 10) -> tuple["PointSequence", np.ndarray]:
+    """:func:`remove_sparse_points` on every frame of a sequence.
+
+    Parameters
+    ----------
+    seq
+        The input frames, ``(N_t, 3)`` metres each.
+    k, ratio
+        As in :func:`remove_sparse_points` (``ratio = 0`` returns ``seq`` itself).
+    min_points
+        Fewer points left in a frame is an error.
+
+    Returns
+    -------
+    (PointSequence, ndarray)
+        The cleaned sequence (same source, names and format) and the ``(F,)`` fraction of
+        each frame's points removed.
+
+    Raises
+    ------
+    EmptyFrameError
+        If a frame keeps fewer than ``min_points`` points (naming the frame).
+    """
+    from .sequence import PointSequence
+
+    if ratio <= 0:
+        return seq, np.zeros(seq.n_frames)
+    out, removed = [], np.zeros(seq.n_frames)
+    for i, pts in enumerate(seq.frames):
+        kept = remove_sparse_points(pts, k, ratio)
+        if len(kept) < min_points:
+            raise EmptyFrameError(
+                f"only {len(kept)} point(s) left after removing sparse points (fewer than "
+                f"{min_points}); set [preprocess] sparse_ratio = 0 to keep them", seq.source,
+                frame=i)
+        out.append(kept)
+        removed[i] = 1.0 - len(kept) / max(len(pts), 1)
+    return PointSequence(out, seq.source, list(seq.names), seq.fmt), removed
 
 
 def mls_project(points: np.ndarray, k: int = 16, source: np.ndarray | None = None) -> np.ndarray:
