@@ -23,12 +23,14 @@ from scipy.spatial.transform import Rotation
 from pointrig import _core
 from pointrig.config import RegistrationConfig
 from pointrig.errors import ConfigError, InputError
+from pointrig.preprocess import surface_cover
 from pointrig.registration import (
     RegistrationResult,
     build_graph,
     cache_key,
     node_transforms_from_points,
     register_sequence,
+    resolve_rest_frame,
 )
 from pointrig.sequence import PointSequence
 
@@ -119,6 +121,47 @@ def test_clean_sequence_known_correspondences_under_half_a_centimetre() -> None:
     assert err.mean() < 0.005
     assert res.points.shape == (10, len(res.rest_points), 3)
     assert np.all(res.iterations >= 1) and np.all(res.sigma2 > 0)
+
+
+def _patches(density: float, parts: tuple[int, ...]) -> np.ndarray:
+    """Three 0.3 x 0.3 m patches (a torso and two limbs) at 2 m, each ``parts`` index shown;
+    ``density`` points per metre along each axis, ``(N, 3)`` metres."""
+    g = np.arange(0.0, 0.3, 1.0 / density)
+    x, y = np.meshgrid(g, g)
+    patch = np.column_stack([x.ravel(), y.ravel(), np.full(x.size, 2.0)])
+    return np.vstack([patch + [0.4 * k, 0.0, 0.05 * k] for k in parts])
+
+
+def test_surface_cover_measures_area_not_point_density() -> None:
+    """Occupied voxels against the area / voxel-face oracle: the same patches sampled 3x
+    sparser (a subject farther from the camera) cover the same, one patch less covers less."""
+    full, sparse, two = _patches(200, (0, 1, 2)), _patches(200 / 3, (0, 1, 2)), _patches(200, (0, 1))
+    cover = surface_cover([full, sparse, two])
+    voxel = 4 * 3 / 200  # 4 x the largest median spacing (the sparse frame's)
+    oracle = 3 * (0.3 / voxel) ** 2  # three patches' area over one voxel face
+    assert abs(cover[0] - oracle) / oracle < 0.25 and abs(cover[1] - oracle) / oracle < 0.25
+    assert abs(cover[0] - cover[1]) <= 0.05 * cover[0]
+    assert cover[2] == pytest.approx(2 / 3 * cover[0], rel=0.05)
+    # a point count would have picked the dense frame with a patch missing over the sparse one
+    assert len(two) > len(sparse) and cover[2] < cover[1]
+
+
+def test_visible_rest_frame_is_the_most_complete_frame_of_the_middle_half() -> None:
+    """Frames 2-4 miss a limb (occluded), frame 5 shows all of it at a third of the point
+    density, frames 0, 1, 6, 7 (outside the middle half) show it all: 'visible' picks 5, where
+    'middle' picks the incomplete frame 4."""
+    frames = [_patches(150, (0, 1, 2))] * 2 + [_patches(150, (0, 1))] * 3 \
+        + [_patches(50, (0, 1, 2))] + [_patches(150, (0, 1, 2))] * 2
+    visible = RegistrationConfig(rest_frame="visible")
+    assert resolve_rest_frame(visible, 8, frames) == 5
+    assert resolve_rest_frame(RegistrationConfig(rest_frame="middle"), 8, frames) == 4
+    assert RegistrationConfig().rest_frame == "visible"  # the default
+    # every frame alike: the middle one (ties go to the middle)
+    assert resolve_rest_frame(visible, 8, [frames[0]] * 8) == 4
+    with pytest.raises(ConfigError, match="needs the frames"):
+        resolve_rest_frame(visible, 8)
+    with pytest.raises(ConfigError, match="'visible'"):
+        RegistrationConfig(rest_frame="visibel")
 
 
 def test_middle_rest_frame_registers_both_ways() -> None:

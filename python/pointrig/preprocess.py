@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -26,6 +27,7 @@ __all__ = [
     "remove_statistical_outliers",
     "remove_sparse_points",
     "remove_sparse_frames",
+    "surface_cover",
     "mls_project",
     "farthest_point_sampling",
     "chamfer_misfit",
@@ -132,6 +134,38 @@ def remove_sparse_frames(seq: "PointSequence", k: int = 10, ratio: float = 4.0,
         out.append(kept)
         removed[i] = 1.0 - len(kept) / max(len(pts), 1)
     return PointSequence(out, seq.source, list(seq.names), seq.fmt), removed
+
+
+def surface_cover(frames: Sequence[np.ndarray], spacing_factor: float = 4.0) -> np.ndarray:
+    """How much surface each frame shows: its occupied cells of one voxel grid.
+
+    A depth camera's point density falls with the square of the distance, so a point count
+    measures distance as much as visible surface; the number of occupied voxels of a size
+    well above every frame's point spacing does not (it is the visible area over the voxel's
+    face, for a surface seen at every voxel it crosses). The voxel edge is ``spacing_factor``
+    times the largest median nearest-neighbour spacing of up to 10 frames spread over the
+    sequence. Scattered outliers add a cell each: remove them first
+    (:func:`remove_sparse_frames`).
+
+    Parameters
+    ----------
+    frames
+        ``F`` arrays ``(N_t, 3)``, metres.
+    spacing_factor
+        Voxel edge over the point spacing (> 1).
+
+    Returns
+    -------
+    ``(F,)`` int64 occupied-voxel counts.
+    """
+    if not len(frames):
+        return np.zeros(0, dtype=np.int64)
+    probe = np.unique(np.linspace(0, len(frames) - 1, min(10, len(frames))).astype(int))
+    voxel = spacing_factor * max(median_spacing(frames[i]) for i in probe)
+    if not voxel > 0:  # every probed frame has coincident points
+        return np.array([len(f) for f in frames], dtype=np.int64)
+    return np.array([len(np.unique(np.floor(np.asarray(f) / voxel).astype(np.int64), axis=0))
+                     for f in frames], dtype=np.int64)
 
 
 def mls_project(points: np.ndarray, k: int = 16, source: np.ndarray | None = None) -> np.ndarray:

@@ -18,7 +18,7 @@ import dataclasses
 import hashlib
 import json
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -32,6 +32,7 @@ from .config import RegistrationConfig
 from .errors import ConfigError, FormatError, InputError
 from .io import write_npz
 from .preprocess import (
+    surface_cover,
     chamfer_misfit,
     estimate_normals,
     farthest_point_sampling,
@@ -238,18 +239,38 @@ def cache_key(seq: PointSequence, config: RegistrationConfig) -> str:
     return h.hexdigest()
 
 
-def resolve_rest_frame(config: RegistrationConfig, n_frames: int) -> int:
-    """Index of the rest frame: ``config.rest_frame`` if an int, ``n_frames // 2`` if "middle".
+def resolve_rest_frame(config: RegistrationConfig, n_frames: int,
+                       frames: Sequence[np.ndarray] | None = None) -> int:
+    """Index of the rest frame: ``config.rest_frame`` if an int, ``n_frames // 2`` if
+    "middle"; if "visible", the frame of the middle half of the sequence (frames ``F // 4`` to
+    ``F - F // 4 - 1``) whose points cover the most surface (:func:`pointrig.preprocess.
+    surface_cover`; ties go to the frame nearest the middle).
+
+    Parameters
+    ----------
+    config
+        The step-1 parameters.
+    n_frames
+        ``F``.
+    frames
+        The ``F`` frames, ``(N_t, 3)`` metres each; needed for "visible" only.
 
     Raises
     ------
     ConfigError
-        If the index is outside ``[0, n_frames)`` (its type, an index or "middle", is checked
-        when the config is made).
+        If the index is outside ``[0, n_frames)`` (its type, an index, "middle" or
+        "visible", is checked when the config is made), or "visible" without ``frames``.
     """
     rf = config.rest_frame
     if rf == "middle":
         return n_frames // 2
+    if rf == "visible":
+        if frames is None or len(frames) != n_frames:
+            raise ConfigError("[registration] rest_frame 'visible' needs the frames")
+        lo, hi = n_frames // 4, n_frames - n_frames // 4
+        cover = surface_cover(frames[lo:hi])
+        mid = n_frames // 2
+        return max(range(lo, hi), key=lambda t: (cover[t - lo], -abs(t - mid)))
     if not 0 <= rf < n_frames:
         raise ConfigError(f"[registration] rest_frame {rf!r} outside 0..{n_frames - 1}")
     return int(rf)
@@ -373,7 +394,7 @@ def register_sequence(
     config = config or RegistrationConfig()
     f = seq.n_frames
     _validate(config, f)
-    rf = resolve_rest_frame(config, f)  # also validates it
+    rf = resolve_rest_frame(config, f, seq.frames)  # also validates it
     lo, hi = seq.bounds()
     if np.linalg.norm(hi - lo) > 50.0:
         log.warning(
@@ -622,7 +643,7 @@ def refine_registration(
     if posed.shape != (f, m, 3) or not np.isfinite(posed).all():
         raise InputError(f"refine_registration: posed points must be finite ({f}, {m}, 3), "
                          f"got {posed.shape}")
-    rf = int(reg.params.get("rest_frame_index", resolve_rest_frame(config, f)))
+    rf = int(reg.params.get("rest_frame_index", resolve_rest_frame(config, f, seq.frames)))
     graph, g, kw, normal_radius = _frame_setup(rest, seq.frames[rf], config)
     r_start, t_start = node_transforms_from_points(graph, posed)  # (F, J, 3, 3), (F, J, 3)
     points = posed.copy()
