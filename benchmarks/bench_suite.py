@@ -1,0 +1,115 @@
+"""The accuracy suite: the default pipeline (or variants of it) on the 14 sequences of
+:data:`bench_refine.SEQUENCES`, with the rounding spread.
+
+Each variant is a JSON object of per-stage overrides of :class:`pointrig.config.PipelineConfig`
+(``{}`` = the defaults). Every sequence runs ``--repeats`` times per variant, repeat ``k > 0``
+on the input moved by at most 1e-9 m (``bench_refine._jittered``, docs/registration.md
+"Session 27": a difference smaller than this spread is not a measured difference). Prints per
+sequence and variant recall / precision / raw / normalised cm (means over the repeats), then
+per variant and repeat the suite means (errors over the sequences where every run matches a
+joint) and the recall of the procedural figures and of the glTF rigs::
+
+    PYTHONPATH=python python benchmarks/bench_suite.py                      # ~13 min a repeat
+    PYTHONPATH=python python benchmarks/bench_suite.py --repeats 2 '{}' \\
+        '{"registration": {"rest_frame": "middle"}}'                        # an ablation
+    PYTHONPATH=python python benchmarks/bench_suite.py --frames 40 --only human,hand
+
+``--json FILE`` also writes every run's report.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from bench_refine import SEQUENCES, _jittered, selected, suite  # noqa: E402
+from bench_registration_downstream import score_joints  # noqa: E402
+
+from pointrig.config import PipelineConfig  # noqa: E402
+from pointrig.pipeline import extract  # noqa: E402
+
+PROCEDURAL = [n for n, (src, _) in SEQUENCES.items() if not src.endswith(".glb")]
+
+
+def variant_config(over: dict) -> PipelineConfig:
+    """The default :class:`PipelineConfig` with ``{"stage": {"field": value}}`` on top."""
+    cfg = PipelineConfig()
+    for stage, kv in over.items():
+        cfg = dataclasses.replace(cfg, **{stage: dataclasses.replace(getattr(cfg, stage), **kv)})
+    return cfg
+
+
+def main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("variants", nargs="*", default=["{}"], help="JSON overrides per variant")
+    ap.add_argument("--frames", type=int, default=100)
+    ap.add_argument("--only", default="", help="comma-separated sequence names")
+    ap.add_argument("--repeats", type=int, default=1)
+    ap.add_argument("--json", type=Path, default=None, help="write every run's report here")
+    a = ap.parse_args(argv)
+    if a.repeats < 1:
+        ap.error("--repeats must be >= 1")
+    only = selected(ap, a.only)
+    try:
+        overs = [json.loads(v) for v in a.variants]
+        cfgs = [variant_config(o) for o in overs]
+    except (ValueError, TypeError, AttributeError) as exc:
+        ap.error(f"bad variant: {exc}")
+    # res[v][k][name] = (recall, precision, raw cm, normalised cm, seconds)
+    res: list[list[dict[str, tuple[float, ...]]]] = [[{} for _ in range(a.repeats)]
+                                                     for _ in cfgs]
+    reports: dict[str, dict] = {}
+    print(f"{'sequence':<16}" + "".join(f"{'variant ' + str(v):>34}" for v in range(len(cfgs))))
+    for name, syn in suite(a.frames, only):
+        seq0 = syn.to_point_sequence()
+        cells = []
+        for v, cfg in enumerate(cfgs):
+            for k in range(a.repeats):
+                seq = seq0 if k == 0 else _jittered(seq0, k)
+                t0 = time.perf_counter()
+                out = extract(seq, cfg, None, pictures=False)
+                secs = time.perf_counter() - t0
+                rep = score_joints(out.skeleton.joint_positions, syn)
+                res[v][k][name] = (rep.recall, rep.precision, 100 * rep.raw_error,
+                                   100 * rep.normalized_error, secs)
+                reports[f"{v}/{k}/{name}"] = rep.to_dict() | {"seconds": secs}
+            g = np.array([res[v][k][name] for k in range(a.repeats)])
+            m = np.nanmean(g, axis=0) if np.isfinite(g[:, 3]).any() else g.mean(axis=0)
+            cells.append(f"{m[0]:.2f}/{m[1]:.2f} {m[2]:5.2f} {m[3]:5.2f} ({m[4]:3.0f} s)")
+        print(f"{name:<16}" + "".join(f"{c:>34}" for c in cells), flush=True)
+        if a.json:
+            a.json.write_text(json.dumps({"variants": overs, "runs": reports}, indent=1,
+                                         default=str))
+    names = list(res[0][0])
+    if not names:
+        return 0
+    every = [n for n in names
+             if all(np.isfinite(r[n][3]) for rv in res for r in rv)]
+    print(f"\nmeans over {len(names)} sequences of {a.frames} frames (raw / normalised over the "
+          f"{len(every)} where every run matches a joint); recall of the procedural figures / "
+          "the glTF rigs:")
+    for v, rv in enumerate(res):
+        for k, r in enumerate(rv):
+            m = np.array([r[n] for n in names])
+            e = np.array([r[n] for n in every]).reshape(-1, 5)
+            proc = [r[n][0] for n in names if n in PROCEDURAL]
+            gl = [r[n][0] for n in names if n not in PROCEDURAL]
+            f = lambda x: f"{np.mean(x):.3f}" if len(x) else "-"  # noqa: E731
+            print(f"variant {v} repeat {k}: recall {m[:, 0].mean():.3f} precision "
+                  f"{m[:, 1].mean():.3f} raw {e[:, 2].mean() if len(e) else np.nan:.2f} cm "
+                  f"normalised {e[:, 3].mean() if len(e) else np.nan:.2f} cm; procedural "
+                  f"{f(proc)} glTF {f(gl)}; {m[:, 4].sum():.0f} s  {a.variants[v]}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))
