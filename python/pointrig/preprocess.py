@@ -91,7 +91,7 @@ def remove_sparse_points(points: np.ndarray, k: int = 10, ratio: float = 4.0) ->
     n = len(points)
     if ratio <= 0 or n <= k + 1:
         return points.copy()
-    dk = cKDTree(points).query(points, k=k + 1)[0][:, -1]
+    dk = cKDTree(points).query(points, k=k + 1, workers=-1)[0][:, -1]
     return points[dk <= ratio * np.median(dk)]
 
 
