@@ -27,6 +27,7 @@ import numpy as np
 from .config import PipelineConfig
 from .export import write_bvh, write_gltf
 from .kinematics import joint_trajectories
+from .preprocess import remove_sparse_frames
 from .sequence import PointSequence, check_units
 from .skeleton import Skeleton
 
@@ -142,8 +143,6 @@ def extract(
     from . import joints as joints_mod
     from . import registration as reg_mod
     from . import structure as struct_mod
-
-    from .preprocess import remove_sparse_frames
 
     config = config or PipelineConfig()
     check_units(seq, config.preprocess.max_extent)

@@ -10,8 +10,8 @@ fragmented single-view cloud stays fragmented rather than being bridged by a rec
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np

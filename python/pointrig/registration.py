@@ -32,12 +32,12 @@ from .config import RegistrationConfig
 from .errors import ConfigError, FormatError, InputError
 from .io import write_npz
 from .preprocess import (
-    surface_cover,
     chamfer_misfit,
     estimate_normals,
     farthest_point_sampling,
     mean_spacing,
     rest_surface,
+    surface_cover,
 )
 from .sequence import PointSequence
 
