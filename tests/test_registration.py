@@ -149,7 +149,8 @@ def test_surface_cover_measures_area_not_point_density() -> None:
 def test_visible_rest_frame_is_the_most_complete_frame_of_the_middle_half() -> None:
     """Frames 2-4 miss a limb (occluded), frame 5 shows all of it at a third of the point
     density, frames 0, 1, 6, 7 (outside the middle half) show it all: 'visible' picks 5, where
-    'middle' picks the incomplete frame 4."""
+    'middle' picks the incomplete frame 4; a frame that shows only a little more than the
+    middle one (within ``rest_cover_tolerance``) does not move the rest frame."""
     frames = [_patches(150, (0, 1, 2))] * 2 + [_patches(150, (0, 1))] * 3 \
         + [_patches(50, (0, 1, 2))] + [_patches(150, (0, 1, 2))] * 2
     visible = RegistrationConfig(rest_frame="visible")
@@ -158,10 +159,25 @@ def test_visible_rest_frame_is_the_most_complete_frame_of_the_middle_half() -> N
     assert RegistrationConfig().rest_frame == "visible"  # the default
     # every frame alike: the middle one (ties go to the middle)
     assert resolve_rest_frame(visible, 8, [frames[0]] * 8) == 4
+    # frame 5 shows a small extra patch (2-3 % more cells than the middle frame): within the
+    # default tolerance the middle frame stays; with none, the largest cover wins
+    g = np.arange(0.0, 0.06, 1.0 / 150)
+    x, y = np.meshgrid(g, g)
+    tab = np.column_stack([x.ravel() + 1.3, y.ravel(), np.full(x.size, 2.0)])
+    full = _patches(150, (0, 1, 2))
+    near = [full] * 5 + [np.vstack([full, tab])] + [full] * 2
+    cover = surface_cover(near)
+    assert 1.01 < cover[5] / cover[4] < 1.03
+    assert resolve_rest_frame(visible, 8, near) == 4
+    assert resolve_rest_frame(RegistrationConfig(rest_frame="visible", rest_cover_tolerance=0.0),
+                              8, near) == 5
     with pytest.raises(ConfigError, match="needs the frames"):
         resolve_rest_frame(visible, 8)
     with pytest.raises(ConfigError, match="'visible'"):
         RegistrationConfig(rest_frame="visibel")
+    for bad in (-0.1, 1.0, "0.03", True):
+        with pytest.raises(ConfigError, match="rest_cover_tolerance"):
+            RegistrationConfig(rest_cover_tolerance=bad)
 
 
 def test_middle_rest_frame_registers_both_ways() -> None:

@@ -104,12 +104,15 @@ class RegistrationConfig:
     # "middle" (n_frames // 2): frames are registered forwards and backwards from it, so the
     # chain of frame-to-frame registrations (and its tangential drift) is half as long; 25
     # sequences: correspondence error 5.90 -> 4.73 cm (docs/registration.md, session 9);
-    # "visible" (default): the frame of the middle half that shows the most surface
-    # (pointrig.preprocess.surface_cover), so a limb hidden in the middle frame is still in
-    # the rest points; 14 sequences, two runs: recall 0.765 / 0.747 -> 0.810 / 0.805, the
-    # procedural figures 0.928 -> 0.978 / 0.969, the snake's error 3 -> 7 cm (a longer chain;
-    # docs/registration.md, session 31)
+    # "visible" (default): the frame nearest the middle among the frames of the middle half
+    # that show about the most surface (pointrig.preprocess.surface_cover), so a limb hidden
+    # in the middle frame is still in the rest points; 14 sequences, two runs: recall 0.765 /
+    # 0.747 -> 0.839 / 0.802, the procedural figures 0.928 -> 0.969 / 0.978, the snake's
+    # error 3 -> 4-5 cm (a longer chain; docs/registration.md, session 31)
     rest_frame: int | str = "visible"
+    # "visible": frames whose cover is within this fraction of the middle half's largest are
+    # equal, and the one nearest the middle is taken (a shorter chain); 0 = the largest cover
+    rest_cover_tolerance: float = 0.03
     n_rest_points: int = 2000  # M, points of the rest-pose point set surface
     node_spacing: float = 0.0  # deformation-graph node spacing, metres (0 = from n_nodes)
     n_nodes: int = 200  # target node count when node_spacing is 0
@@ -190,6 +193,10 @@ class RegistrationConfig:
                                         or rf in ("middle", "visible")):
             raise ConfigError("[registration] rest_frame must be a frame index, 'middle' or "
                               f"'visible', got {rf!r}")
+        tol = self.rest_cover_tolerance
+        if isinstance(tol, bool) or not isinstance(tol, numbers.Real) or not 0 <= tol < 1:
+            raise ConfigError("[registration] rest_cover_tolerance must be in [0, 1), got "
+                              f"{tol!r}")
 
     @classmethod
     def paper(cls, **overrides: Any) -> "RegistrationConfig":

@@ -242,9 +242,10 @@ def cache_key(seq: PointSequence, config: RegistrationConfig) -> str:
 def resolve_rest_frame(config: RegistrationConfig, n_frames: int,
                        frames: Sequence[np.ndarray] | None = None) -> int:
     """Index of the rest frame: ``config.rest_frame`` if an int, ``n_frames // 2`` if
-    "middle"; if "visible", the frame of the middle half of the sequence (frames ``F // 4`` to
-    ``F - F // 4 - 1``) whose points cover the most surface (:func:`pointrig.preprocess.
-    surface_cover`; ties go to the frame nearest the middle).
+    "middle"; if "visible", of the frames of the middle half of the sequence (``F // 4`` to
+    ``F - F // 4 - 1``) whose points cover within ``config.rest_cover_tolerance`` of the most
+    surface any of them covers (:func:`pointrig.preprocess.surface_cover`), the one nearest
+    the middle (the shortest chain of frame-to-frame registrations).
 
     Parameters
     ----------
@@ -269,8 +270,8 @@ def resolve_rest_frame(config: RegistrationConfig, n_frames: int,
             raise ConfigError("[registration] rest_frame 'visible' needs the frames")
         lo, hi = n_frames // 4, n_frames - n_frames // 4
         cover = surface_cover(frames[lo:hi])
-        mid = n_frames // 2
-        return max(range(lo, hi), key=lambda t: (cover[t - lo], -abs(t - mid)))
+        good = np.flatnonzero(cover >= (1.0 - config.rest_cover_tolerance) * cover.max()) + lo
+        return int(good[np.argmin(np.abs(good - n_frames // 2))])
     if not 0 <= rf < n_frames:
         raise ConfigError(f"[registration] rest_frame {rf!r} outside 0..{n_frames - 1}")
     return int(rf)
