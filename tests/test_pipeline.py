@@ -41,6 +41,12 @@ def test_outputs_exist_and_follow_contract(demo_run):
         assert parents[b["tail_joint"]] == b["head_joint"]
     for stage in ("registration", "structure", "joints", "preprocess"):
         assert stage in doc["params"]
+    # the rest pose is the pose of the recorded rest frame, a frame of the middle half
+    rf = doc["source"]["rest_frame"]
+    assert F // 4 <= rf < F - F // 4
+    rest = np.array([j["rest_position"] for j in doc["joints"]])
+    off = np.abs(np.asarray(doc["joint_positions"]) - rest).max(axis=(1, 2))  # (F,) metres
+    assert off[rf] < 0.01 and int(np.argmin(off)) == rf
     sk = load_skeleton_json(demo_run / "skeleton.json")
     assert sk.n_joints == J
     w = np.load(demo_run / "weights.npz")

@@ -239,6 +239,7 @@ def extract(
         source = {"input": str(seq.source), "format": seq.fmt, "frames": len(seq),
                   "points_per_frame": n_input,
                   "points_used_per_frame": [int(c) for c in seq.counts],
+                  "rest_frame": int((reg.params or {}).get("rest_frame_index", -1)),
                   "stopped_after": stop_after}
         params = config.to_dict()
         params["timings_s"] = {k: round(v, 3) for k, v in timings.items()}
