@@ -644,7 +644,8 @@ def refine_registration(
     if posed.shape != (f, m, 3) or not np.isfinite(posed).all():
         raise InputError(f"refine_registration: posed points must be finite ({f}, {m}, 3), "
                          f"got {posed.shape}")
-    rf = int(reg.params.get("rest_frame_index", resolve_rest_frame(config, f, seq.frames)))
+    rf = reg.params.get("rest_frame_index")  # the cover search only for an old checkpoint
+    rf = resolve_rest_frame(config, f, seq.frames) if rf is None else int(rf)
     graph, g, kw, normal_radius = _frame_setup(rest, seq.frames[rf], config)
     r_start, t_start = node_transforms_from_points(graph, posed)  # (F, J, 3, 3), (F, J, 3)
     points = posed.copy()
