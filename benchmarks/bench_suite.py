@@ -20,7 +20,6 @@ joint) and the recall of the procedural figures and of the glTF rigs::
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import sys
 import time
@@ -34,18 +33,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_refine import SEQUENCES, _jittered, selected, suite  # noqa: E402
 from bench_registration_downstream import score_joints  # noqa: E402
 
-from pointrig.config import PipelineConfig  # noqa: E402
+from pointrig.config import apply_overrides  # noqa: E402
 from pointrig.pipeline import extract  # noqa: E402
 
 PROCEDURAL = [n for n, (src, _) in SEQUENCES.items() if not src.endswith(".glb")]
-
-
-def variant_config(over: dict) -> PipelineConfig:
-    """The default :class:`PipelineConfig` with ``{"stage": {"field": value}}`` on top."""
-    cfg = PipelineConfig()
-    for stage, kv in over.items():
-        cfg = dataclasses.replace(cfg, **{stage: dataclasses.replace(getattr(cfg, stage), **kv)})
-    return cfg
 
 
 def main(argv: list[str]) -> int:
@@ -61,8 +52,8 @@ def main(argv: list[str]) -> int:
     only = selected(ap, a.only)
     try:
         overs = [json.loads(v) for v in a.variants]
-        cfgs = [variant_config(o) for o in overs]
-    except (ValueError, TypeError, AttributeError) as exc:
+        cfgs = [apply_overrides(o, where=f"variant {v}") for v, o in enumerate(overs)]
+    except (ValueError, AttributeError) as exc:  # bad JSON, a ConfigError, not a mapping
         ap.error(f"bad variant: {exc}")
     # res[v][k][name] = (recall, precision, raw cm, normalised cm, seconds)
     res: list[list[dict[str, tuple[float, ...]]]] = [[{} for _ in range(a.repeats)]

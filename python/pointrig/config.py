@@ -31,6 +31,7 @@ __all__ = [
     "JointsConfig",
     "PipelineConfig",
     "load_config",
+    "apply_overrides",
 ]
 
 
@@ -513,11 +514,26 @@ def load_config(path: str | Path | None = None, base: PipelineConfig | None = No
         raise ConfigError(f"{p}: config file not found") from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{p}: not valid TOML: {exc}") from None
+    return apply_overrides(data, base, where=str(p))
+
+
+def apply_overrides(data: dict[str, Any], base: PipelineConfig | None = None,
+                    where: str = "overrides") -> PipelineConfig:
+    """``base`` (default: Table 1 defaults) with ``{"stage": {"parameter": value}}`` on top,
+    checked and coerced as a config file is (:func:`load_config`).
+
+    Raises
+    ------
+    ConfigError
+        If ``data`` names an unknown stage or parameter or a value is invalid; messages start
+        with ``where``.
+    """
+    base = base or PipelineConfig()
     stages = {f.name: f for f in fields(PipelineConfig)}
     updates = {}
     for stage, values in data.items():
         if stage not in stages or not isinstance(values, dict):
-            raise ConfigError(f"{p}: unknown section [{stage}]; known: {', '.join(stages)}")
+            raise ConfigError(f"{where}: unknown section [{stage}]; known: {', '.join(stages)}")
         current = dataclasses.asdict(getattr(base, stage))
         current.update(values)
         updates[stage] = _coerce(type(getattr(base, stage)), stage, current)
