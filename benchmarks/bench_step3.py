@@ -1,0 +1,132 @@
+"""Step 3 alone on cached inputs: variants of ``[joints]`` without rerunning steps 1-2.
+
+The default pipeline runs once per sequence of :data:`bench_refine.SEQUENCES` and its inputs
+to the final step 3 (the cleaned frames, the refined registration's rest and registered points,
+the final step-2 structure, the rest frame) are pickled to ``--cache DIR``; later runs load
+them. Each variant (a JSON object of :class:`pointrig.config.JointsConfig` overrides, ``{}`` =
+the defaults) then runs :func:`pointrig.joints.learn_joints` alone, 10-20 s a sequence instead
+of 50-120 s for the whole pipeline. The skeleton (bones, tree) is the same for every variant,
+so recall and precision change only through the matching.
+
+Prints per sequence and variant recall / precision, raw / normalised error (cm) and the *depth
+bias*: the matched joints' mean signed offset from the truth along the camera ray (cm,
+negative = in front of the truth, towards the camera), then the means per variant (errors over
+the sequences where every variant matches a joint)::
+
+    PYTHONPATH=python python benchmarks/bench_step3.py --cache /tmp/step3 '{}' \\
+        '{"joint_prior": 0.3}'
+    PYTHONPATH=python python benchmarks/bench_step3.py --cache /tmp/step3 --only human,girl_run
+
+A cache is valid for the code and defaults that wrote it; delete it after changing steps 1-2.
+The whole-pipeline effect of a change is measured by ``bench_suite.py`` (step 3 runs twice
+there, and the refinement between the runs starts from the first one).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pickle
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from bench_refine import selected, suite  # noqa: E402
+from bench_registration_downstream import score_joints  # noqa: E402
+
+from pointrig.config import JointsConfig, PipelineConfig, apply_overrides  # noqa: E402
+from pointrig.joints import learn_joints  # noqa: E402
+from pointrig.pipeline import build_skeleton, extract  # noqa: E402
+from pointrig.preprocess import remove_sparse_frames  # noqa: E402
+
+
+def cached_inputs(name: str, syn: Any, cache: Path) -> dict[str, Any]:
+    """The default pipeline's inputs to its final step 3 for ``syn``, from ``cache`` or computed
+    (and written there): ``frames`` (``F`` clouds ``(N_t, 3)``, m), ``rest`` ``(M, 3)``,
+    ``regpts`` ``(F, M, 3)``, ``structure``, ``rest_index``, ``default_P`` ``(F, J, 3)``."""
+    path = cache / f"{name}.pkl"
+    if path.exists():
+        with open(path, "rb") as f:
+            return pickle.load(f)
+    cfg = PipelineConfig()
+    seq = syn.to_point_sequence()
+    out = extract(seq, cfg, None, pictures=False)
+    clean, _ = remove_sparse_frames(seq, cfg.preprocess.sparse_neighbors,
+                                    cfg.preprocess.sparse_ratio)
+    reg = out.refined_registration or out.registration
+    data = dict(frames=clean.frames, rest=reg.rest_points, regpts=reg.points,
+                structure=out.structure, rest_index=out.registration.params.get(
+                    "rest_frame_index"), default_P=out.skeleton.joint_positions)
+    cache.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp")
+    with open(tmp, "wb") as f:
+        pickle.dump(data, f)
+    tmp.replace(path)
+    return data
+
+
+def depth_bias(joint_positions: np.ndarray, syn: Any, report: Any) -> float:
+    """Mean over matched joints and frames of ``(p - g) . u`` (metres), ``u`` the unit ray from
+    the camera (the origin of the synthetic frames) to the true joint ``g``; nan if none."""
+    vals = []
+    for i, row in enumerate(report.rows):
+        if row.matched < 0:
+            continue
+        g = syn.gt_joints[:, i]
+        u = g / np.linalg.norm(g, axis=1, keepdims=True)
+        vals.append(float(np.einsum("fi,fi->f", joint_positions[:, row.matched] - g, u).mean()))
+    return float(np.mean(vals)) if vals else float("nan")
+
+
+def main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--cache", required=True, help="directory of the cached step-3 inputs")
+    ap.add_argument("--only", default="", help="comma-separated sequence names")
+    ap.add_argument("--frames", type=int, default=100)
+    ap.add_argument("variants", nargs="*", help="JSON [joints] overrides per variant")
+    a = ap.parse_args(argv)
+    only = selected(ap, a.only)
+    variants = [json.loads(v) for v in a.variants] or [{}]
+    cfgs: list[JointsConfig] = [apply_overrides({"joints": v}).joints for v in variants]
+    rows: dict[int, list[tuple[float, ...]]] = {k: [] for k in range(len(variants))}
+    print(f"{'sequence':<16} " + " | ".join(
+        f"variant {k}: rec/prec raw norm depth (s)" for k in range(len(variants))))
+    for name, syn in suite(a.frames, only):
+        d = cached_inputs(name, syn, Path(a.cache))
+        st = d["structure"]
+        cells = []
+        for k, cfg in enumerate(cfgs):
+            t0 = time.perf_counter()
+            jr = learn_joints(d["frames"], d["rest"], d["regpts"], st, cfg,
+                              rest_index=d["rest_index"])
+            secs = time.perf_counter() - t0
+            sk = build_skeleton(d["rest"], st.bone_parent, jr.joints_rest, jr.R, jr.T,
+                                jr.weights, np.argmax(jr.weights, 1))
+            r = score_joints(sk.joint_positions, syn)
+            db = depth_bias(sk.joint_positions, syn, r)
+            rows[k].append((r.recall, r.precision, 100 * r.raw_error, 100 * r.normalized_error,
+                            100 * db))
+            cells.append(f"{r.recall:.2f}/{r.precision:.2f} {100 * r.raw_error:5.2f} "
+                         f"{100 * r.normalized_error:5.2f} {100 * db:+5.2f} ({secs:3.0f})")
+        print(f"{name:<16} " + " | ".join(cells), flush=True)
+    if not rows[0]:
+        return 0
+    arr = {k: np.array(v) for k, v in rows.items()}
+    ok = np.all([np.isfinite(v[:, 3]) for v in arr.values()], axis=0)
+    print(f"\nmeans over {len(arr[0])} sequences (errors over the {int(ok.sum())} where every "
+          "variant matches a joint):")
+    for k, v in arr.items():
+        print(f"variant {k}: recall {v[:, 0].mean():.3f} precision {v[:, 1].mean():.3f} "
+              f"raw {v[ok, 2].mean():.2f} cm normalised {v[ok, 3].mean():.2f} cm depth bias "
+              f"{np.nanmean(v[:, 4]):+.2f} cm  {json.dumps(variants[k])}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))

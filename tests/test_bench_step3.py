@@ -1,0 +1,35 @@
+"""The depth-bias column of benchmarks/bench_step3.py against a closed form."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+
+from bench_step3 import depth_bias  # noqa: E402
+
+from pointrig.evaluate import evaluate  # noqa: E402
+
+
+def test_depth_bias_is_the_mean_offset_along_the_camera_ray() -> None:
+    """Predictions = truth moved along each true joint's own ray by known amounts, plus a move
+    across the ray that must not count; one far-off prediction stays unmatched."""
+    rng = np.random.default_rng(0)
+    F, J = 12, 3
+    gt = np.stack([np.array([0.0, 0.0, 2.0]), np.array([0.3, -0.2, 2.1]),
+                   np.array([-0.25, 0.3, 1.9])])[None] + 0.05 * rng.normal(size=(F, J, 3))
+    u = gt / np.linalg.norm(gt, axis=2, keepdims=True)
+    across = np.cross(u, np.array([0.0, 0.0, 1.0]))  # perpendicular to every ray
+    depth = np.array([-0.03, 0.01])  # joints 0 and 1: 3 cm in front, 1 cm behind
+    pred = np.concatenate([gt[:, :2] + depth[None, :, None] * u[:, :2] + 0.02 * across[:, :2],
+                           gt[:, 2:] + np.array([2.0, 0.0, 0.0])], axis=1)
+    rep = evaluate(pred, gt, np.array([-1, 0, 0]), threshold=0.2)
+    assert [r.matched for r in rep.rows] == [0, 1, -1]
+    syn = SimpleNamespace(gt_joints=gt)
+    assert abs(depth_bias(pred, syn, rep) - depth.mean()) < 1e-12
+    none = evaluate(pred[:, 2:] + 5.0, gt, np.array([-1, 0, 0]), threshold=0.2)
+    assert np.isnan(depth_bias(pred[:, 2:] + 5.0, syn, none))
