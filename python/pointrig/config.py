@@ -343,6 +343,9 @@ class StructureConfig:
     root_end_alignment: float = 1.0
     root_choice: str = "largest"  # root bone: "centroid" = centre nearest the rest-pose
     #   centroid (§5.3), "largest" = the bone with the most points
+    # output skeleton: a root that is a leaf of a branched tree (the largest part is a limb end,
+    # e.g. a big head) moves to the body's centre ("centre"), or stays ("keep"); session 33
+    leaf_root: str = "centre"
 
     # --- single-view depth correction (our deviation, docs/structure.md) ---
     # one depth view sees only the near side of each part, so boundary centroids c~ lie in
@@ -364,7 +367,8 @@ class StructureConfig:
     def __post_init__(self) -> None:
         _check_choices(self, "structure", {
             "merge_rule": ("angle", "both"), "merge_reference": ("range", "rest"),
-            "root_choice": ("largest", "centroid"), "edge_weight": ("dislocation", "eq15"),
+            "root_choice": ("largest", "centroid"), "leaf_root": ("centre", "keep"),
+            "edge_weight": ("dislocation", "eq15"),
             "view_depth_method": ("width", "quantile"),
             "single_view": ("yes", "no", "auto")})
 

@@ -196,7 +196,10 @@ def extract(
         progress("structure", 1, 1, f"{len(st.bone_parent)} bones")
     if stop_after == "structure":
         weights = np.eye(len(st.bone_parent))[st.labels]
-        skel = build_skeleton(reg.rest_points, st.bone_parent, st.joints_rest, st.R, st.T,
+        parent, joints_rest = struct_mod.output_tree(reg.rest_points, st.labels,
+                                                     st.bone_parent, st.joints_rest,
+                                                     config.structure, st.view_camera)
+        skel = build_skeleton(reg.rest_points, parent, joints_rest, st.R, st.T,
                               weights, st.labels)
     else:
         # ---- step 3: joint learning ------------------------------------------------------
@@ -231,7 +234,10 @@ def extract(
             result.refined_registration = refined
         result.joints = jr
         labels = np.argmax(jr.weights, axis=1)
-        skel = build_skeleton(reg.rest_points, st.bone_parent, jr.joints_rest, jr.R, jr.T,
+        parent, joints_rest = struct_mod.output_tree(reg.rest_points, labels, st.bone_parent,
+                                                     jr.joints_rest, config.structure,
+                                                     st.view_camera)
+        skel = build_skeleton(reg.rest_points, parent, joints_rest, jr.R, jr.T,
                               jr.weights, labels)
     result.skeleton = skel
 

@@ -1154,6 +1154,152 @@ def root_joint_position(rest_points: np.ndarray, labels: np.ndarray, root: int,
     return centre + axis * float(np.quantile((pts - centre) @ axis, 0.03))
 
 
+def tree_centre(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np.ndarray,
+                joints_rest: np.ndarray, quantile: float = 0.98) -> tuple[np.ndarray, int]:
+    """The rest point that minimises the farthest distance to the rest of the body *through
+    the bone tree*, and its bone.
+
+    The distance from a point ``x`` of bone ``b`` to a point ``y`` of bone ``b'`` runs from
+    ``x`` to the joint where the tree path leaves ``b``, along the path's joints, and from the
+    joint where it enters ``b'`` to ``y`` (straight within one bone). A point's eccentricity is
+    the largest such distance, each bone's far end taken as the ``quantile`` of its points'
+    distances (robust to stray points). On a figure it lies between the limbs' attachments
+    (a human's lower spine), whatever bone is largest.
+
+    Parameters
+    ----------
+    rest_points
+        ``(M, 3)`` rest points, metres.
+    labels
+        ``(M,)`` bone of each point.
+    bone_parent
+        ``(B,)`` parent bone, ``-1`` at the root.
+    joints_rest
+        ``(B, 3)`` head joint of every bone, metres (the root's is not used).
+    quantile
+        In ``(0, 1]``.
+
+    Returns
+    -------
+    point, bone
+        ``(3,)`` the centre (one of the rest points), metres, and the bone holding it.
+    """
+    from scipy.spatial.distance import cdist
+
+    Q = np.asarray(rest_points, dtype=float)
+    labels = np.asarray(labels, dtype=np.int64)
+    parent = np.asarray(bone_parent, dtype=np.int64)
+    B = len(parent)
+    adj: list[list[tuple[int, int]]] = [[] for _ in range(B)]  # (neighbour, joint index)
+    for k, p in enumerate(parent):
+        if p >= 0:
+            adj[k].append((int(p), k))
+            adj[int(p)].append((k, k))
+    pts = [Q[labels == b] for b in range(B)]
+    best: tuple[float, np.ndarray, int] | None = None
+    for b in range(B):
+        P = pts[b]
+        if len(P) == 0:
+            continue
+        ecc = np.quantile(cdist(P, P), quantile, axis=1)
+        # walk the tree from b: for each bone reached, the first joint on the way out of b,
+        # the path length along the joints since, and the joint where the walk entered it
+        stack = [(nb, j, j, 0.0) for nb, j in adj[b]]
+        seen = {b}
+        while stack:
+            c, first, last, length = stack.pop()
+            seen.add(c)
+            if len(pts[c]):
+                far = float(np.quantile(np.linalg.norm(pts[c] - joints_rest[last], axis=1),
+                                        quantile))
+                ecc = np.maximum(ecc, np.linalg.norm(P - joints_rest[first], axis=1)
+                                 + length + far)
+            for nb, j in adj[c]:
+                if nb not in seen:
+                    stack.append((nb, first, j,
+                                  length + float(np.linalg.norm(joints_rest[j]
+                                                                - joints_rest[last]))))
+        i = int(np.argmin(ecc))
+        if best is None or ecc[i] < best[0]:
+            best = (float(ecc[i]), P[i].copy(), b)
+    if best is None:
+        raise InputError("tree_centre: no bone holds any rest point")
+    return best[1], best[2]
+
+
+def centre_root_joint(rest_points: np.ndarray, centre: np.ndarray,
+                      view_camera: np.ndarray | None = None, view_quantile: float = 0.95,
+                      view_method: str = "width", ball: float = 0.1) -> np.ndarray:
+    """Rest position ``(3,)`` (metres) of a root joint at the body's centre: the centroid of
+    the rest points within ``ball`` times the rest points' bounding-box diagonal of ``centre``
+    (:func:`tree_centre`), moved back along the camera ray to the depth of the body's axis
+    (:func:`pointrig.view.view_depth_correct`) when ``view_camera`` is given."""
+    Q = np.asarray(rest_points, dtype=float)
+    radius = ball * float(np.linalg.norm(np.ptp(Q, axis=0)))
+    near = Q[np.linalg.norm(Q - centre, axis=1) <= radius]
+    if len(near) == 0:
+        near = np.asarray(centre, dtype=float)[None]
+    c = near.mean(axis=0)
+    if view_camera is not None and view_quantile > 0:
+        c = view_depth_correct(near, None, c, view_camera, view_quantile, view_method)
+    return c
+
+
+def output_tree(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np.ndarray,
+                joints_rest: np.ndarray, cfg: StructureConfig,
+                view_camera: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The bone tree and head joints ``((B,), (B, 3))`` of the output skeleton.
+
+    With ``cfg.leaf_root = "centre"`` a root that is a leaf of a branched tree
+    (:func:`leaf_root`: the largest part is a limb end, such as a big head) is moved to the
+    body's centre (:func:`tree_centre`, :func:`centre_root_joint`, :func:`reroot`): its head
+    joint would otherwise sit at the far end of that limb (``root_end_alignment``), where no
+    rig puts a joint. Chains (an arm, a snake) and roots with several children are unchanged.
+    The bones' motions do not change, only which joint heads which bone.
+    """
+    parent = np.asarray(bone_parent, dtype=np.int64)
+    if cfg.leaf_root != "centre" or len(parent) < 3 or not leaf_root(parent):
+        return parent, np.asarray(joints_rest, dtype=float)
+    centre, bone = tree_centre(rest_points, labels, parent, joints_rest)
+    joint = centre_root_joint(rest_points, centre, view_camera, cfg.view_depth_quantile,
+                              cfg.view_depth_method)
+    log.info("root moved from bone %d (a leaf) to bone %d at the body's centre",
+             int(np.flatnonzero(parent < 0)[0]), bone)
+    return reroot(parent, joints_rest, bone, joint)
+
+
+def leaf_root(bone_parent: np.ndarray) -> bool:
+    """True if the root bone is a leaf of a branched tree: it has one child, and some bone has
+    three or more tree neighbours (not a chain)."""
+    parent = np.asarray(bone_parent, dtype=np.int64)
+    root = int(np.flatnonzero(parent < 0)[0])
+    degree = np.bincount(parent[parent >= 0], minlength=len(parent)) + (parent >= 0)
+    return int(np.sum(parent == root)) == 1 and bool(np.any(degree >= 3))
+
+
+def reroot(bone_parent: np.ndarray, joints_rest: np.ndarray, new_root: int,
+           root_joint: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The same bone tree rooted at ``new_root``: parents ``(B,)`` and head joints ``(B, 3)``.
+
+    Every joint stays where it is; only the bone it heads changes. On the path from the old
+    root to ``new_root`` each edge turns round, so the joint between a bone and its old parent
+    becomes the head of that parent. The old root's own head joint is dropped and
+    ``root_joint (3,)`` (metres) becomes the head of ``new_root``.
+    """
+    parent = np.asarray(bone_parent, dtype=np.int64).copy()
+    joints = np.asarray(joints_rest, dtype=float).copy()
+    path = [int(new_root)]
+    while parent[path[-1]] >= 0:
+        path.append(int(parent[path[-1]]))
+    old_joint = {k: joints[k].copy() for k in path}
+    for child, par in zip(path[:-1], path[1:]):
+        parent[par] = child
+        joints[par] = old_joint[child]
+    parent[new_root] = -1
+    joints[new_root] = np.asarray(root_joint, dtype=float)
+    return parent, joints
+
+
 def to_skeleton(result: StructureResult) -> Skeleton:
     """The :class:`~pointrig.skeleton.Skeleton` of a structure result.
 
