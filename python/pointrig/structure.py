@@ -60,6 +60,11 @@ __all__ = [
     "removal_cost",
     "skeleton_distance",
     "write_structure_outputs",
+    "output_tree",
+    "tree_centre",
+    "centre_root_joint",
+    "leaf_root",
+    "reroot",
 ]
 
 log = logging.getLogger(__name__)
@@ -1196,6 +1201,7 @@ def tree_centre(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np.nda
             adj[k].append((int(p), k))
             adj[int(p)].append((k, k))
     pts = [Q[labels == b] for b in range(B)]
+    far: dict[tuple[int, int], float] = {}  # (bone, entry joint) -> reach of its far end
     best: tuple[float, np.ndarray, int] | None = None
     for b in range(B):
         P = pts[b]
@@ -1210,10 +1216,11 @@ def tree_centre(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np.nda
             c, first, last, length = stack.pop()
             seen.add(c)
             if len(pts[c]):
-                far = float(np.quantile(np.linalg.norm(pts[c] - joints_rest[last], axis=1),
-                                        quantile))
+                if (c, last) not in far:
+                    far[c, last] = float(np.quantile(
+                        np.linalg.norm(pts[c] - joints_rest[last], axis=1), quantile))
                 ecc = np.maximum(ecc, np.linalg.norm(P - joints_rest[first], axis=1)
-                                 + length + far)
+                                 + length + far[c, last])
             for nb, j in adj[c]:
                 if nb not in seen:
                     stack.append((nb, first, j,
@@ -1258,7 +1265,7 @@ def output_tree(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np.nda
     The bones' motions do not change, only which joint heads which bone.
     """
     parent = np.asarray(bone_parent, dtype=np.int64)
-    if cfg.leaf_root != "centre" or len(parent) < 3 or not leaf_root(parent):
+    if cfg.leaf_root != "centre" or not leaf_root(parent):
         return parent, np.asarray(joints_rest, dtype=float)
     centre, bone = tree_centre(rest_points, labels, parent, joints_rest)
     joint = centre_root_joint(rest_points, centre, view_camera, cfg.view_depth_quantile,
