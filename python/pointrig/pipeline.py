@@ -196,11 +196,7 @@ def extract(
         progress("structure", 1, 1, f"{len(st.bone_parent)} bones")
     if stop_after == "structure":
         weights = np.eye(len(st.bone_parent))[st.labels]
-        parent, joints_rest = struct_mod.output_tree(reg.rest_points, st.labels,
-                                                     st.bone_parent, st.joints_rest,
-                                                     config.structure, st.view_camera)
-        skel = build_skeleton(reg.rest_points, parent, joints_rest, st.R, st.T,
-                              weights, st.labels)
+        labels, joints_rest, R, T = st.labels, st.joints_rest, st.R, st.T
     else:
         # ---- step 3: joint learning ------------------------------------------------------
         rest_index = reg.params.get("rest_frame_index") if reg.params else None
@@ -233,12 +229,12 @@ def extract(
             result.structure = st
             result.refined_registration = refined
         result.joints = jr
-        labels = np.argmax(jr.weights, axis=1)
-        parent, joints_rest = struct_mod.output_tree(reg.rest_points, labels, st.bone_parent,
-                                                     jr.joints_rest, config.structure,
-                                                     st.view_camera)
-        skel = build_skeleton(reg.rest_points, parent, joints_rest, jr.R, jr.T,
-                              jr.weights, labels)
+        weights, labels = jr.weights, np.argmax(jr.weights, axis=1)
+        joints_rest, R, T = jr.joints_rest, jr.R, jr.T
+    # the output tree (a leaf root moves to the body's centre), then the skeleton
+    parent, joints_rest = struct_mod.output_tree(reg.rest_points, labels, st.bone_parent,
+                                                 joints_rest, config.structure, st.view_camera)
+    skel = build_skeleton(reg.rest_points, parent, joints_rest, R, T, weights, labels)
     result.skeleton = skel
 
     if out is not None:
