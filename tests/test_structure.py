@@ -539,3 +539,61 @@ def test_the_arm_hangs_from_the_bone_it_turns_about_not_the_patch_it_lies_on():
         extract_structure(Q, Y, StructureConfig(edge_joint_prior=-1.0))
     with pytest.raises(ConfigError, match="edge_weight"):
         StructureConfig(edge_weight="distance")
+
+
+def test_structure_from_labels_reproduces_a_run_and_its_tree(arm_result):
+    """Given a result's own labels (and tree) the tree, motions, c~ and joints come out the
+    same: the function is the end of extract_structure without the clustering."""
+    from pointrig.structure import structure_from_labels
+
+    d, r = arm_result
+    cfg = StructureConfig(n_clusters=20)
+    for parent in (None, r.bone_parent):
+        s = structure_from_labels(d["rest"], d["points"], r.labels, cfg, parent)
+        np.testing.assert_array_equal(s.bone_parent, r.bone_parent)
+        assert s.root == r.root
+        for a, b in ((s.R, r.R), (s.T, r.T), (s.c_tilde, r.c_tilde),
+                     (s.joints_rest, r.joints_rest)):
+            np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
+
+
+def test_structure_from_labels_finds_the_pivot_of_exact_motion():
+    """Exact rigid motion of three plates (torso, a half-turning patch, an arm swinging about
+    the shoulder pivot): the Kabsch motions are the exact ones, the arm hangs from the torso,
+    its c~ is the centroid of the arm-torso contact band (k-d tree ball oracle) and its joint
+    the ridge least squares of Eq. 20 (numpy ``lstsq``), which lies on the pivot's axis line
+    when the prior is weak."""
+    from scipy.spatial import cKDTree
+
+    from pointrig.structure import structure_from_labels
+
+    Q, Y, labels, R, T = _arm_beside_torso()
+    for eta in (1.0, 1e-6):
+        cfg = StructureConfig(neighbor_stretch=0.0, view_depth_quantile=0.0, eta=eta)
+        s = structure_from_labels(Q, Y, labels, cfg)
+        np.testing.assert_allclose(s.R, R, atol=1e-9)
+        np.testing.assert_allclose(s.T, T, atol=1e-9)
+        assert s.bone_parent[2] == 0 and s.view_camera is None
+        dist, idx = cKDTree(Q).query(Q, k=cfg.vote_neighbors + 1)
+        radius = cfg.vote_radius_ratio * np.median(dist[:, -1])
+        nb = np.where(dist[:, 1:] <= radius, labels[idx[:, 1:]], -1)
+        band = ((labels == 2) & (nb == 0).any(1)) | ((labels == 0) & (nb == 2).any(1))
+        np.testing.assert_allclose(s.c_tilde[2], Q[band].mean(0), atol=1e-12)
+        A = (R[:, 0] - R[:, 2]).reshape(-1, 3)
+        b = (T[:, 0] - T[:, 2]).ravel()
+        M = np.vstack([A, np.sqrt(eta) * np.eye(3)])
+        c = np.linalg.lstsq(M, np.r_[-b, np.sqrt(eta) * Q[band].mean(0)], rcond=None)[0]
+        np.testing.assert_allclose(s.joints_rest[2], c, atol=1e-9)
+    np.testing.assert_allclose(s.joints_rest[2], [0.33, 0.49, 0.0], atol=1e-4)
+
+
+def test_structure_from_labels_rejects_bad_labels_and_trees():
+    from pointrig.structure import structure_from_labels
+
+    Q, Y, labels, _R, _T = _arm_beside_torso(4)
+    for bad in (labels[:-1], labels + 1, labels.astype(float), np.where(labels == 1, -1, labels)):
+        with pytest.raises(InputError):
+            structure_from_labels(Q, Y, bad)
+    for parent in ([-1, -1, 0], [1, 2, 0], [-1, 0], [-1, 0, 3]):
+        with pytest.raises(InputError):
+            structure_from_labels(Q, Y, labels, None, np.array(parent))

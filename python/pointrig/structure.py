@@ -52,6 +52,7 @@ from .view import SINGLE_VIEW_MAX_TWO_LAYER, in_view, two_layer_fraction, view_d
 __all__ = [
     "StructureResult",
     "extract_structure",
+    "structure_from_labels",
     "to_skeleton",
     "fit_bones",
     "eq15_weights",
@@ -1088,9 +1089,24 @@ def _extract_once(ctx: _Ctx, features: np.ndarray, seed: int,
         c_tilde = _boundary_centroids(ctx, labels, parent)
         joints = solve_joint_positions(R, T, parent, c_tilde, cfg.eta)
 
+    diag["refine_passes"] = passes
+    res = _finish(ctx, labels, R, T, counts, parent, root, c_tilde, joints, view_camera, diag)
+    diag["time_run_s"] = round(time.perf_counter() - t0, 4)
+    log.info("structure (seed %d): k=%d -> %d clusters -> %d bones in %.2fs", seed, k,
+             diag["n_after_clustering"], B, diag["time_run_s"])
+    return res
+
+
+def _finish(ctx: _Ctx, labels: np.ndarray, R: np.ndarray, T: np.ndarray, counts: np.ndarray,
+            parent: np.ndarray, root: int, c_tilde: np.ndarray, joints: np.ndarray,
+            view_camera: np.ndarray | None, diag: dict[str, Any]) -> StructureResult:
+    """The final skeleton of a segmentation with its tree: the single-view correction of
+    ``c~``, the Eq. 20 joints, the root joint and the per-bone residuals."""
+    cfg, Q = ctx.cfg, ctx.Q
+    B = len(parent)
     if view_camera is not None:
         # single-view depth correction of the final c~ only: the refinement's pruning tests
-        # above keep the uncorrected (surface) joints, so the bone count does not depend on it.
+        # keep the uncorrected (surface) joints, so the bone count does not depend on it.
         # The root joint is not corrected: the root part can reach far back in depth (a torso
         # seen side-on), and a quantile of its depths overshot by 20 cm on a 100-frame human
         c_tilde = _boundary_centroids(ctx, labels, parent, view_camera)
@@ -1100,17 +1116,80 @@ def _extract_once(ctx: _Ctx, features: np.ndarray, seed: int,
     res_own = _core.cluster_residuals(Q, ctx.Y, R, T, np.ascontiguousarray(labels[:, None]))[:, 0]
     rms = [float(np.sqrt(res_own[labels == b].mean() / ctx.F)) for b in range(B)]
     diag.update({
-        "n_bones": int(B), "refine_passes": passes, "rms_residual_m": rms,
+        "n_bones": int(B), "rms_residual_m": rms,
         "counts": [int(c) for c in counts], "rms_radius_m": ctx.rms_radius,
-        "time_run_s": round(time.perf_counter() - t0, 4),
     })
-    log.info("structure (seed %d): k=%d -> %d clusters -> %d bones in %.2fs", seed, k,
-             diag["n_after_clustering"], B, diag["time_run_s"])
     return StructureResult(labels=labels, bone_parent=parent, R=R, T=T, joints_rest=joints,
                            c_tilde=c_tilde, root=root, rest_points=Q, diagnostics=diag,
                            view_camera=view_camera,
                            view_quantile=cfg.view_depth_quantile if view_camera is not None
                            else 0.0, view_method=cfg.view_depth_method)
+
+
+def structure_from_labels(rest_points: np.ndarray, points: np.ndarray, labels: np.ndarray,
+                          config: StructureConfig | None = None,
+                          bone_parent: np.ndarray | None = None) -> StructureResult:
+    """Step 2's bone tree, motions and joints for a given segmentation of the rest points.
+
+    No clustering and no refinement: the bones are ``labels`` as given. Each bone's motion is
+    the Kabsch fit to its registered points, the tree is the minimum spanning tree of the
+    touching graph (§5.3, :class:`~pointrig.config.StructureConfig` ``edge_weight``), or
+    ``bone_parent`` when given, and the joints come from Eq. 20 with the single-view
+    correction, as at the end of :func:`extract_structure`. Called with a result's own labels
+    (and tree) it reproduces that result. Uses: a segmentation from elsewhere (a painted one,
+    one from exact motion in a benchmark).
+
+    Parameters
+    ----------
+    rest_points
+        ``(M, 3)`` rest points, metres.
+    points
+        ``(F, M, 3)`` registered points, metres.
+    labels
+        ``(M,)`` integer bone of each rest point, every bone of ``0 .. B-1`` used.
+    config
+        :class:`~pointrig.config.StructureConfig` (defaults if ``None``).
+    bone_parent
+        ``(B,)`` parent of each bone (-1 at the one root) to use instead of the spanning tree.
+
+    Raises
+    ------
+    InputError
+        On wrong shapes, non-finite values, labels that skip a bone or a parent array that is
+        not one tree over the bones.
+    """
+    import networkx as nx
+
+    cfg = config or StructureConfig()
+    Q, Y = _check_inputs(rest_points, points, cfg)
+    lab = np.asarray(labels)
+    if lab.shape != (len(Q),) or not np.issubdtype(lab.dtype, np.integer) or lab.min() < 0:
+        raise InputError(f"labels must be ({len(Q)},) non-negative integers, got {lab.shape} "
+                         f"{lab.dtype}")
+    B = int(lab.max()) + 1
+    if len(np.unique(lab)) != B:
+        raise InputError(f"labels must use every bone 0..{B - 1}")
+    lab = lab.astype(np.int64)
+    ctx = _Ctx(Q, Y, cfg)
+    view_diag: dict[str, Any] = {}
+    view_camera = _view_camera(Q, cfg, view_diag)
+    diag: dict[str, Any] = {"labels_given": True, **view_diag}
+    R, T, counts = ctx.fit(lab, B)
+    if bone_parent is None:
+        parent, root, _bridges = _build_tree(ctx, lab, B, R, T, diag)
+    else:
+        parent = np.asarray(bone_parent, dtype=np.int64)
+        roots = np.flatnonzero(parent < 0)
+        G = nx.Graph()
+        G.add_nodes_from(range(B))
+        if parent.shape == (B,) and len(roots) == 1 and np.all(parent < B):
+            G.add_edges_from((int(b), int(p)) for b, p in enumerate(parent) if p >= 0)
+        if parent.shape != (B,) or len(roots) != 1 or not nx.is_tree(G):
+            raise InputError(f"bone_parent must be ({B},) with one root (-1) forming a tree")
+        root = int(roots[0])
+    c_tilde = _boundary_centroids(ctx, lab, parent)
+    joints = solve_joint_positions(R, T, parent, c_tilde, cfg.eta)
+    return _finish(ctx, lab, R, T, counts, parent, root, c_tilde, joints, view_camera, diag)
 
 
 def _view_camera(Q: np.ndarray, cfg: StructureConfig, diag: dict[str, Any]) -> np.ndarray | None:
