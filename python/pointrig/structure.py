@@ -1098,13 +1098,15 @@ def _extract_once(ctx: _Ctx, features: np.ndarray, seed: int,
 
 
 def _finish(ctx: _Ctx, labels: np.ndarray, R: np.ndarray, T: np.ndarray, counts: np.ndarray,
-            parent: np.ndarray, root: int, c_tilde: np.ndarray, joints: np.ndarray,
-            view_camera: np.ndarray | None, diag: dict[str, Any]) -> StructureResult:
+            parent: np.ndarray, root: int, c_tilde: np.ndarray | None,
+            joints: np.ndarray | None, view_camera: np.ndarray | None,
+            diag: dict[str, Any]) -> StructureResult:
     """The final skeleton of a segmentation with its tree: the single-view correction of
-    ``c~``, the Eq. 20 joints, the root joint and the per-bone residuals."""
+    ``c~``, the Eq. 20 joints (``c_tilde`` / ``joints`` uncorrected, or ``None`` to compute
+    them), the root joint and the per-bone residuals."""
     cfg, Q = ctx.cfg, ctx.Q
     B = len(parent)
-    if view_camera is not None:
+    if view_camera is not None or c_tilde is None or joints is None:
         # single-view depth correction of the final c~ only: the refinement's pruning tests
         # keep the uncorrected (surface) joints, so the bone count does not depend on it.
         # The root joint is not corrected: the root part can reach far back in depth (a torso
@@ -1187,9 +1189,7 @@ def structure_from_labels(rest_points: np.ndarray, points: np.ndarray, labels: n
         if parent.shape != (B,) or len(roots) != 1 or not nx.is_tree(G):
             raise InputError(f"bone_parent must be ({B},) with one root (-1) forming a tree")
         root = int(roots[0])
-    c_tilde = _boundary_centroids(ctx, lab, parent)
-    joints = solve_joint_positions(R, T, parent, c_tilde, cfg.eta)
-    return _finish(ctx, lab, R, T, counts, parent, root, c_tilde, joints, view_camera, diag)
+    return _finish(ctx, lab, R, T, counts, parent, root, None, None, view_camera, diag)
 
 
 def _view_camera(Q: np.ndarray, cfg: StructureConfig, diag: dict[str, Any]) -> np.ndarray | None:
