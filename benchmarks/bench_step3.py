@@ -40,10 +40,17 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_refine import selected, suite  # noqa: E402
 from bench_registration_downstream import score_joints  # noqa: E402
 
-from pointrig.config import JointsConfig, PipelineConfig, apply_overrides  # noqa: E402
+from pointrig.config import (  # noqa: E402
+    JointsConfig,
+    PipelineConfig,
+    StructureConfig,
+    apply_overrides,
+)
 from pointrig.joints import learn_joints  # noqa: E402
 from pointrig.pipeline import build_skeleton, extract  # noqa: E402
 from pointrig.preprocess import remove_sparse_frames  # noqa: E402
+from pointrig.skeleton import Skeleton  # noqa: E402
+from pointrig.structure import output_tree  # noqa: E402
 
 
 def cached_inputs(name: str, syn: Any, cache: Path) -> dict[str, Any]:
@@ -71,6 +78,33 @@ def cached_inputs(name: str, syn: Any, cache: Path) -> dict[str, Any]:
     return data
 
 
+def step3_skeleton(d: dict[str, Any], structure: Any, joints_cfg: JointsConfig,
+                   structure_cfg: StructureConfig) -> tuple[Skeleton, float]:
+    """Step 3 on the cached inputs ``d`` (:func:`cached_inputs`) with ``structure``, and the
+    skeleton as the pipeline outputs it (re-rooted by :func:`pointrig.structure.output_tree`);
+    returns it and step 3's seconds."""
+    t0 = time.perf_counter()
+    jr = learn_joints(d["frames"], d["rest"], d["regpts"], structure, joints_cfg,
+                      rest_index=d["rest_index"])
+    secs = time.perf_counter() - t0
+    labels = np.argmax(jr.weights, 1)
+    parent, joints = output_tree(d["rest"], labels, structure.bone_parent, jr.joints_rest,
+                                 structure_cfg, structure.view_camera)
+    return build_skeleton(d["rest"], parent, joints, jr.R, jr.T, jr.weights, labels), secs
+
+
+def summary(rows: dict[Any, list[tuple[float, ...]]], what: str
+            ) -> tuple[dict[Any, np.ndarray], np.ndarray]:
+    """Print the header of the means and return ``rows`` (per key, one tuple per sequence:
+    recall, precision, raw cm, normalised cm, ...) as arrays with the mask of the sequences
+    where every ``what`` matched a joint (finite normalised error)."""
+    arr = {k: np.array(v) for k, v in rows.items()}
+    ok = np.all([np.isfinite(v[:, 3]) for v in arr.values()], axis=0)
+    print(f"\nmeans over {len(ok)} sequences (errors over the {int(ok.sum())} where every "
+          f"{what} matches a joint):")
+    return arr, ok
+
+
 def depth_bias(joint_positions: np.ndarray, syn: Any, report: Any) -> float:
     """Mean over matched joints and frames of ``(p - g) . u`` (metres), ``u`` the unit ray from
     the camera (the origin of the synthetic frames) to the true joint ``g``; nan if none."""
@@ -94,6 +128,7 @@ def main(argv: list[str]) -> int:
     only = selected(ap, a.only)
     variants = [json.loads(v) for v in a.variants] or [{}]
     cfgs: list[JointsConfig] = [apply_overrides({"joints": v}).joints for v in variants]
+    structure_cfg = StructureConfig()
     rows: dict[int, list[tuple[float, ...]]] = {k: [] for k in range(len(variants))}
     print(f"{'sequence':<16} " + " | ".join(
         f"variant {k}: rec/prec raw norm depth (s)" for k in range(len(variants))))
@@ -102,12 +137,7 @@ def main(argv: list[str]) -> int:
         st = d["structure"]
         cells = []
         for k, cfg in enumerate(cfgs):
-            t0 = time.perf_counter()
-            jr = learn_joints(d["frames"], d["rest"], d["regpts"], st, cfg,
-                              rest_index=d["rest_index"])
-            secs = time.perf_counter() - t0
-            sk = build_skeleton(d["rest"], st.bone_parent, jr.joints_rest, jr.R, jr.T,
-                                jr.weights, np.argmax(jr.weights, 1))
+            sk, secs = step3_skeleton(d, st, cfg, structure_cfg)
             r = score_joints(sk.joint_positions, syn)
             db = depth_bias(sk.joint_positions, syn, r)
             rows[k].append((r.recall, r.precision, 100 * r.raw_error, 100 * r.normalized_error,
@@ -117,10 +147,7 @@ def main(argv: list[str]) -> int:
         print(f"{name:<16} " + " | ".join(cells), flush=True)
     if not rows[0]:
         return 0
-    arr = {k: np.array(v) for k, v in rows.items()}
-    ok = np.all([np.isfinite(v[:, 3]) for v in arr.values()], axis=0)
-    print(f"\nmeans over {len(arr[0])} sequences (errors over the {int(ok.sum())} where every "
-          "variant matches a joint):")
+    arr, ok = summary(rows, "variant")
     for k, v in arr.items():
         print(f"variant {k}: recall {v[:, 0].mean():.3f} precision {v[:, 1].mean():.3f} "
               f"raw {v[ok, 2].mean():.2f} cm normalised {v[ok, 3].mean():.2f} cm depth bias "

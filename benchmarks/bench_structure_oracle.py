@@ -36,12 +36,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_refine import selected, suite  # noqa: E402
 from bench_registration_downstream import score_joints  # noqa: E402
-from bench_step3 import cached_inputs  # noqa: E402
+from bench_step3 import cached_inputs, step3_skeleton, summary  # noqa: E402
 
 from pointrig.config import PipelineConfig  # noqa: E402
-from pointrig.joints import learn_joints  # noqa: E402
-from pointrig.pipeline import build_skeleton  # noqa: E402
-from pointrig.structure import extract_structure, output_tree, structure_from_labels  # noqa: E402
+from pointrig.structure import extract_structure, structure_from_labels  # noqa: E402
 
 RUNGS = ("registration", "exact labels", "+ exact tree", "exact step 2")
 
@@ -83,12 +81,7 @@ def main(argv: list[str]) -> int:
         t0 = time.perf_counter()
         cells = []
         for rung, st in structures(d, syn, cfg).items():
-            jr = learn_joints(d["frames"], d["rest"], d["regpts"], st, cfg.joints,
-                              rest_index=d["rest_index"])
-            labels = np.argmax(jr.weights, 1)
-            parent, joints = output_tree(d["rest"], labels, st.bone_parent, jr.joints_rest,
-                                         cfg.structure, st.view_camera)
-            sk = build_skeleton(d["rest"], parent, joints, jr.R, jr.T, jr.weights, labels)
+            sk, _secs = step3_skeleton(d, st, cfg.joints, cfg.structure)
             r = score_joints(sk.joint_positions, syn)
             B = len(st.bone_parent)
             rows[rung].append((r.recall, r.precision, 100 * r.raw_error,
@@ -99,10 +92,7 @@ def main(argv: list[str]) -> int:
               flush=True)
     if not rows[RUNGS[0]]:
         return 0
-    arr = {k: np.array(v) for k, v in rows.items()}
-    ok = np.all([np.isfinite(v[:, 3]) for v in arr.values()], axis=0)
-    print(f"\nmeans over {len(arr[RUNGS[0]])} sequences (errors over the {int(ok.sum())} where "
-          "every rung matches a joint):")
+    arr, ok = summary(rows, "rung")
     for k, v in arr.items():
         print(f"{k:<14} recall {v[:, 0].mean():.3f} precision {v[:, 1].mean():.3f} "
               f"raw {v[ok, 2].mean():.2f} cm normalised {v[ok, 3].mean():.2f} cm "
