@@ -40,6 +40,7 @@ _LAZY = {
     "refine_registration": "registration",
     "StructureResult": "structure",
     "extract_structure": "structure",
+    "structure_from_labels": "structure",
     "JointsResult": "joints",
     "learn_joints": "joints",
 }
@@ -79,5 +80,6 @@ __all__ = [
     "read_sequence",
     "refine_registration",
     "register_sequence",
+    "structure_from_labels",
     "write_sequence",
 ]
