@@ -270,8 +270,11 @@ def chamfer_misfit(template: np.ndarray, data: np.ndarray, trunc: float,
         The misfit, metres (0 when each set lies on the other; at most ``2 * trunc``).
     """
     tree = cKDTree(data) if data_tree is None else data_tree
-    d_td = np.minimum(tree.query(template)[0], trunc).mean()
-    d_dt = np.minimum(cKDTree(template).query(data)[0], trunc).mean()
+    # the search stops at trunc (a farther neighbour comes back as inf and is capped): the
+    # same result, with the far points' searches cut short
+    d_td = np.minimum(tree.query(template, distance_upper_bound=trunc)[0], trunc).mean()
+    d_dt = np.minimum(cKDTree(template).query(data, distance_upper_bound=trunc)[0],
+                      trunc).mean()
     return float(d_td + d_dt)
 
 
