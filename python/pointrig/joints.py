@@ -38,6 +38,7 @@ import os
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any, Callable, Protocol, Sequence
 
@@ -55,6 +56,8 @@ __all__ = ["JointsResult", "StructureLike", "learn_joints", "posed_rest_points",
 
 log = logging.getLogger(__name__)
 _N_THREADS = max(1, min(4, os.cpu_count() or 1))
+#: threads for a tracked frame's hypotheses (:func:`track_bones`; 1 = one after the other)
+_TRACK_WORKERS = 2
 #: subject size (rest bounding-box diagonal, m) the paper's tau_init = 6e-4 m^2 refers to
 _REFERENCE_SIZE = 1.8
 
@@ -446,6 +449,18 @@ def _predict_rigid(R1: np.ndarray, T1: np.ndarray, R0: np.ndarray, T0: np.ndarra
     return np.einsum("bij,bjk->bik", Rs, R1), np.einsum("bij,bj->bi", Rs, T1) + Ts
 
 
+def _fit_and_score(fit_frame: Callable[..., tuple[np.ndarray, np.ndarray, np.ndarray]],
+                   v: np.ndarray, packed: tuple[np.ndarray, np.ndarray], tree: Any,
+                   vn: np.ndarray | None, trunc: float | None,
+                   start: tuple[np.ndarray, np.ndarray]
+                   ) -> tuple[float, np.ndarray, np.ndarray]:
+    """One tracking hypothesis of a frame: ``fit_frame`` from ``start`` (``(B, 3, 3)``,
+    ``(B, 3)``), and the fit's truncated chamfer misfit to the frame ``v`` ``(N, 3)`` (metres;
+    0 when ``trunc`` is None: a single hypothesis needs no score). Returns ``(misfit, R, T)``."""
+    Rt, Tt, X = fit_frame(v, packed, tree, start[0], start[1], vn)
+    return (0.0 if trunc is None else chamfer_misfit(X, v, trunc, tree)), Rt, Tt
+
+
 def track_bones(
     obs: Sequence[np.ndarray],
     rest_points: np.ndarray,
@@ -564,51 +579,56 @@ def track_bones(
     trunc = 3.0 * float(np.sqrt(tau_max))
 
     order = [rest_index] + list(range(rest_index + 1, F)) + list(range(rest_index - 1, -1, -1))
-    for done, t in enumerate(order, start=1):
-        if progress is not None and done > 1:
-            progress(done - 1, F)
-        v = obs[t]
-        s = 1 if t >= rest_index else -1
-        p1, p2 = t - s, t - 2 * s
-        starts = []
-        if t == rest_index:
-            starts.append((R[t].copy(), T[t].copy()))
-        else:
-            if (p2 - rest_index) * s >= 0:
-                starts.append(_predict_rigid(R[p1], T[p1], R[p2], T[p2], config.track_velocity))
+    # a frame's hypotheses are independent fits: they run side by side (the native calls and
+    # the k-d tree queries release the GIL), each with the same arithmetic as alone
+    pool = ThreadPoolExecutor(max_workers=_TRACK_WORKERS)
+    try:
+        for done, t in enumerate(order, start=1):
+            if progress is not None and done > 1:
+                progress(done - 1, F)
+            v = obs[t]
+            s = 1 if t >= rest_index else -1
+            p1, p2 = t - s, t - 2 * s
+            starts = []
+            if t == rest_index:
+                starts.append((R[t].copy(), T[t].copy()))
             else:
-                starts.append((R[p1].copy(), T[p1].copy()))
-            if config.track_from_structure:
-                # second hypothesis: step 2's own pose of this frame (the registration)
-                starts.append((np.array(structure.R[t], dtype=float),
-                               np.array(structure.T[t], dtype=float)))
-        if len(v) == 0:
-            Rt, Tt = starts[0]
-            R[t] = Rt
-            T[t] = _fixed_joint_translations(Rt, Tt[root], joints, parent, skin)[0]
-            continue
-        tree = cKDTree(v)
-        if t != rest_index and (p2 - rest_index) * s >= 0 and config.track_velocity > 0 \
-                and config.track_predict_check > 0:
-            # the previous pose instead of the prediction when it explains the frame better
-            # (a sudden jump or stop: the prediction repeats the jump)
-            Rh, Th = R[p1], T[p1]  # its translations already meet at the joints
-            Xh = skin(Rh, Th)
-            Xp = _fixed_joint_translations(starts[0][0], starts[0][1][root], joints, parent,
-                                           skin)[1]
-            if chamfer_misfit(Xh, v, trunc, tree) < \
-                    config.track_predict_check * chamfer_misfit(Xp, v, trunc, tree):
-                starts[0] = (Rh.copy(), Th.copy())
-        packed = pack_frames([v])
-        best = None
-        for Rs, Ts in starts:
-            Rt, Tt, X = fit_frame(v, packed, tree, Rs, Ts,
-                                  normals[1][t] if use_normals else None)
-            score = chamfer_misfit(X, v, trunc, tree) if len(starts) > 1 else 0.0
-            if best is None or score < best[0]:
-                best = (score, Rt, Tt)
-        assert best is not None
-        R[t], T[t] = best[1], best[2]
+                if (p2 - rest_index) * s >= 0:
+                    starts.append(_predict_rigid(R[p1], T[p1], R[p2], T[p2],
+                                                 config.track_velocity))
+                else:
+                    starts.append((R[p1].copy(), T[p1].copy()))
+                if config.track_from_structure:
+                    # second hypothesis: step 2's own pose of this frame (the registration)
+                    starts.append((np.array(structure.R[t], dtype=float),
+                                   np.array(structure.T[t], dtype=float)))
+            if len(v) == 0:
+                Rt, Tt = starts[0]
+                R[t] = Rt
+                T[t] = _fixed_joint_translations(Rt, Tt[root], joints, parent, skin)[0]
+                continue
+            tree = cKDTree(v)
+            if t != rest_index and (p2 - rest_index) * s >= 0 and config.track_velocity > 0 \
+                    and config.track_predict_check > 0:
+                # the previous pose instead of the prediction when it explains the frame better
+                # (a sudden jump or stop: the prediction repeats the jump)
+                Rh, Th = R[p1], T[p1]  # its translations already meet at the joints
+                Xh = skin(Rh, Th)
+                Xp = _fixed_joint_translations(starts[0][0], starts[0][1][root], joints, parent,
+                                               skin)[1]
+                if chamfer_misfit(Xh, v, trunc, tree) < \
+                        config.track_predict_check * chamfer_misfit(Xp, v, trunc, tree):
+                    starts[0] = (Rh.copy(), Th.copy())
+            packed = pack_frames([v])
+            vn = normals[1][t] if use_normals else None
+
+            fit = partial(_fit_and_score, fit_frame, v, packed, tree, vn,
+                          trunc if len(starts) > 1 else None)
+            fits = list(pool.map(fit, starts)) if len(starts) > 1 else [fit(starts[0])]
+            best = min(fits, key=lambda f: f[0])  # the first on a tie
+            R[t], T[t] = best[1], best[2]
+    finally:
+        pool.shutdown()
     if progress is not None:
         progress(F, F)
     return R, T
