@@ -35,6 +35,7 @@ from __future__ import annotations
 import json
 import logging
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -71,6 +72,8 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 _BAND_SAMPLE = 128  # points per bone used by the blend-band test (speed only)
+#: threads for the ensemble's seeds (:func:`extract_structure`; 1 = one after the other)
+_ENSEMBLE_WORKERS = 2
 
 
 # --------------------------------------------------------------------------------------------
@@ -979,8 +982,11 @@ def extract_structure(rest_points: np.ndarray, points: np.ndarray,
     view_camera = _view_camera(Q, cfg, view_diag)
     n = cfg.ensemble_seeds
     features = kmeans_features(Q, Y, cfg)  # the same for every seed
-    runs = [_extract_once(ctx, features, cfg.seed + i, view_camera, view_diag)
-            for i in range(n)]
+    # the seeds' runs share only read-only inputs: two at a time (the native calls release
+    # the GIL), each with the same arithmetic as alone
+    with ThreadPoolExecutor(max_workers=min(_ENSEMBLE_WORKERS, n)) as pool:
+        runs = list(pool.map(lambda i: _extract_once(ctx, features, cfg.seed + i, view_camera,
+                                                     view_diag), range(n)))
     if n == 1:
         best = runs[0]
     else:
