@@ -1,0 +1,117 @@
+"""Run time of the whole pipeline against its serial form, measured in the same run.
+
+The reference is the pipeline as it ran before session 35: a tracked frame's two hypotheses
+fitted one after the other (``pointrig.joints._TRACK_WORKERS = 1``), the refinement's frames
+registered one after the other (``pointrig.registration._REFINE_WORKERS = 1``), step 2's
+ensemble seeds run one after the other (``pointrig.structure._ENSEMBLE_WORKERS = 1``) and the
+chamfer misfit searching every nearest neighbour to the end (no ``distance_upper_bound``). Both forms
+do the same arithmetic, so the benchmark also checks that the skeletons agree. Prints per
+sequence the seconds of each stage for both and their ratio::
+
+    PYTHONPATH=python python benchmarks/bench_speed.py                  # 100-frame human
+    PYTHONPATH=python python benchmarks/bench_speed.py --only human,girl_run --repeats 2
+
+Each form runs ``--repeats`` times, alternating, and the fastest run of each is reported.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from bench_refine import selected, suite  # noqa: E402
+
+import pointrig.joints as joints_mod  # noqa: E402
+import pointrig.registration as reg_mod  # noqa: E402
+import pointrig.structure as structure_mod  # noqa: E402
+from pointrig.config import PipelineConfig  # noqa: E402
+from pointrig.pipeline import extract  # noqa: E402
+
+STAGES = ("clean-up", "registration", "structure", "joints", "refinement")
+
+
+def chamfer_full_search(template: np.ndarray, data: np.ndarray, trunc: float,
+                        data_tree: cKDTree | None = None) -> float:
+    """:func:`pointrig.preprocess.chamfer_misfit` as before session 35: every nearest-neighbour
+    search runs to the end and the distances are capped afterwards (metres)."""
+    tree = cKDTree(data) if data_tree is None else data_tree
+    d_td = np.minimum(tree.query(template)[0], trunc).mean()
+    d_dt = np.minimum(cKDTree(template).query(data)[0], trunc).mean()
+    return float(d_td + d_dt)
+
+
+@contextmanager
+def serial() -> Iterator[None]:
+    """The reference form: one thread for the hypotheses, the refinement and the seeds; full
+    searches."""
+    saved = (joints_mod._TRACK_WORKERS, reg_mod._REFINE_WORKERS,
+             structure_mod._ENSEMBLE_WORKERS, joints_mod.chamfer_misfit, reg_mod.chamfer_misfit)
+    joints_mod._TRACK_WORKERS = reg_mod._REFINE_WORKERS = structure_mod._ENSEMBLE_WORKERS = 1
+    joints_mod.chamfer_misfit = reg_mod.chamfer_misfit = chamfer_full_search
+    try:
+        yield
+    finally:
+        (joints_mod._TRACK_WORKERS, reg_mod._REFINE_WORKERS, structure_mod._ENSEMBLE_WORKERS,
+         joints_mod.chamfer_misfit, reg_mod.chamfer_misfit) = saved
+
+
+def timed(seq, cfg: PipelineConfig) -> tuple[dict[str, float], np.ndarray]:
+    """Stage seconds (plus ``total``) and the ``(F, J, 3)`` joint positions of one run."""
+    t0 = time.perf_counter()
+    out = extract(seq, cfg, None, pictures=False)
+    secs = dict(out.timings) | {"total": time.perf_counter() - t0}
+    return secs, np.asarray(out.skeleton.joint_positions)
+
+
+def main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--only", default="human", help="comma-separated sequence names")
+    ap.add_argument("--frames", type=int, default=100)
+    ap.add_argument("--repeats", type=int, default=1)
+    a = ap.parse_args(argv)
+    if a.repeats < 1:
+        ap.error("--repeats must be >= 1")
+    only = selected(ap, a.only)
+    cfg = PipelineConfig()
+    cols = (*STAGES, "total")
+    print(f"{'sequence':<16} {'form':<10}" + "".join(f"{c:>14}" for c in cols)
+          + f"{'joints differ (m)':>19}")
+    for name, syn in suite(a.frames, only):
+        seq = syn.to_point_sequence()
+        best: dict[str, dict[str, float]] = {}
+        poses: dict[str, np.ndarray] = {}
+        for _ in range(a.repeats):
+            for form in ("serial", "default"):
+                if form == "serial":
+                    with serial():
+                        secs, P = timed(seq, cfg)
+                else:
+                    secs, P = timed(seq, cfg)
+                poses[form] = P
+                if form not in best or secs["total"] < best[form]["total"]:
+                    best[form] = secs
+        diff = (float(np.abs(poses["serial"] - poses["default"]).max())
+                if poses["serial"].shape == poses["default"].shape else float("inf"))
+        for form in ("serial", "default"):
+            cells = "".join(f"{best[form].get(c, 0.0):>13.2f}s" for c in cols)
+            tail = f"{diff:>19.1e}" if form == "default" else ""
+            print(f"{name:<16} {form:<10}{cells}{tail}")
+        ratio = "".join(
+            f"{best['serial'].get(c, 0.0) / max(best['default'].get(c, 0.0), 1e-9):>13.2f}x"
+            for c in cols)
+        print(f"{name:<16} {'speed-up':<10}{ratio}", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))
