@@ -671,8 +671,9 @@ def refine_registration(
 
     # every frame starts from its own posed points, so the frames are independent: two at a
     # time (the native calls and the k-d tree queries release the GIL), each with the same
-    # arithmetic as alone
-    with ThreadPoolExecutor(max_workers=_REFINE_WORKERS) as pool:
+    # arithmetic as alone. On an error or Ctrl-C the frames not yet started are dropped.
+    pool = ThreadPoolExecutor(max_workers=_REFINE_WORKERS)
+    try:
         for t, res in enumerate(pool.map(one, range(f))):
             if res is not None:
                 points[t] = res["points"]
@@ -682,6 +683,8 @@ def refine_registration(
                 matched[t] = res["n_p"] / max(res["n_data"], 1)
             if progress is not None:
                 progress(t + 1, f)
+    finally:
+        pool.shutdown(cancel_futures=True)
     return RegistrationResult(
         rest_points=rest, points=points, sigma2=sigma2, iterations=iters, energy=energy,
         params={**dataclasses.asdict(config), "rest_frame_index": rf, "refined": True},
