@@ -2,9 +2,11 @@
 
 The reference is the pipeline as it ran before session 35: a tracked frame's two hypotheses
 fitted one after the other (``pointrig.joints._TRACK_WORKERS = 1``), the refinement's frames
-registered one after the other (``pointrig.registration._REFINE_WORKERS = 1``), step 2's
-ensemble seeds run one after the other (``pointrig.structure._ENSEMBLE_WORKERS = 1``) and the
-chamfer misfit searching every nearest neighbour to the end (no ``distance_upper_bound``). Both forms
+registered one after the other (``pointrig.registration._REFINE_WORKERS = 1``), step 1's
+forward and backward chains one after the other (``pointrig.registration._CHAIN_WORKERS =
+1``), step 2's ensemble seeds one after the other (``pointrig.structure._ENSEMBLE_WORKERS =
+1``) and the chamfer misfit searching every nearest neighbour to the end (no
+``distance_upper_bound``). Both forms
 do the same arithmetic, so the benchmark also checks that the skeletons agree. Prints per
 sequence the seconds of each stage for both and their ratio::
 
@@ -38,6 +40,11 @@ from pointrig.config import PipelineConfig  # noqa: E402
 from pointrig.pipeline import extract  # noqa: E402
 
 STAGES = ("clean-up", "registration", "structure", "joints", "refinement")
+#: the thread counts the serial form sets to 1
+WORKERS = ((joints_mod, "_TRACK_WORKERS"), (reg_mod, "_REFINE_WORKERS"),
+           (reg_mod, "_CHAIN_WORKERS"), (structure_mod, "_ENSEMBLE_WORKERS"))
+#: everything the serial form changes (and restores)
+PATCHED = WORKERS + ((joints_mod, "chamfer_misfit"), (reg_mod, "chamfer_misfit"))
 
 
 def chamfer_full_search(template: np.ndarray, data: np.ndarray, trunc: float,
@@ -52,17 +59,16 @@ def chamfer_full_search(template: np.ndarray, data: np.ndarray, trunc: float,
 
 @contextmanager
 def serial() -> Iterator[None]:
-    """The reference form: one thread for the hypotheses, the refinement and the seeds; full
-    searches."""
-    saved = (joints_mod._TRACK_WORKERS, reg_mod._REFINE_WORKERS,
-             structure_mod._ENSEMBLE_WORKERS, joints_mod.chamfer_misfit, reg_mod.chamfer_misfit)
-    joints_mod._TRACK_WORKERS = reg_mod._REFINE_WORKERS = structure_mod._ENSEMBLE_WORKERS = 1
+    """The reference form: every worker count of :data:`WORKERS` 1, full chamfer searches."""
+    saved = {(mod, name): getattr(mod, name) for mod, name in PATCHED}
+    for mod, name in WORKERS:
+        setattr(mod, name, 1)
     joints_mod.chamfer_misfit = reg_mod.chamfer_misfit = chamfer_full_search
     try:
         yield
     finally:
-        (joints_mod._TRACK_WORKERS, reg_mod._REFINE_WORKERS, structure_mod._ENSEMBLE_WORKERS,
-         joints_mod.chamfer_misfit, reg_mod.chamfer_misfit) = saved
+        for (mod, name), value in saved.items():
+            setattr(mod, name, value)
 
 
 def timed(seq, cfg: PipelineConfig) -> tuple[dict[str, float], np.ndarray]:

@@ -14,7 +14,6 @@ import bench_speed  # noqa: E402
 
 import pointrig.joints as joints_mod  # noqa: E402
 import pointrig.registration as reg_mod  # noqa: E402
-import pointrig.structure as structure_mod  # noqa: E402
 from pointrig.preprocess import chamfer_misfit  # noqa: E402
 
 
@@ -34,16 +33,22 @@ def test_full_search_chamfer_equals_the_capped_search() -> None:
 
 def test_serial_form_sets_and_restores_the_workers() -> None:
     """Inside ``serial()`` every worker count is 1 and the modules use the reference chamfer;
-    afterwards (also after an error) the defaults are back."""
-    before = (joints_mod._TRACK_WORKERS, reg_mod._REFINE_WORKERS,
-              structure_mod._ENSEMBLE_WORKERS, joints_mod.chamfer_misfit, reg_mod.chamfer_misfit)
+    afterwards (also after an error) the defaults are back. Every module-level worker count
+    of the package is one the serial form sets."""
+    import pointrig
+
+    before = {(m, n): getattr(m, n) for m, n in bench_speed.PATCHED}
     with pytest.raises(RuntimeError):
         with bench_speed.serial():
-            assert (joints_mod._TRACK_WORKERS, reg_mod._REFINE_WORKERS,
-                    structure_mod._ENSEMBLE_WORKERS) == (1, 1, 1)
+            assert all(getattr(m, n) == 1 for m, n in bench_speed.WORKERS)
             assert joints_mod.chamfer_misfit is bench_speed.chamfer_full_search
             assert reg_mod.chamfer_misfit is bench_speed.chamfer_full_search
             raise RuntimeError("inside")
-    after = (joints_mod._TRACK_WORKERS, reg_mod._REFINE_WORKERS,
-             structure_mod._ENSEMBLE_WORKERS, joints_mod.chamfer_misfit, reg_mod.chamfer_misfit)
-    assert after == before
+    assert {(m, n): getattr(m, n) for m, n in bench_speed.PATCHED} == before
+    assert all(v > 1 for (m, n), v in before.items() if n.endswith("_WORKERS"))
+    found = set()
+    for path in Path(pointrig.__file__).parent.glob("*.py"):
+        for line in path.read_text().splitlines():
+            if line.startswith("_") and line.split("=")[0].strip().endswith("_WORKERS"):
+                found.add((path.stem, line.split("=")[0].strip()))
+    assert found == {(m.__name__.rsplit(".", 1)[1], n) for m, n in bench_speed.WORKERS}

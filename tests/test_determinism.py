@@ -38,8 +38,9 @@ def test_pipeline_is_thread_count_independent(tmp_path):
 
 
 def test_pipeline_is_worker_count_independent(monkeypatch):
-    """A tracked frame's two hypotheses fitted side by side, the refinement's frames and step
-    2's ensemble seeds two at a time (``pointrig.joints._TRACK_WORKERS``,
+    """Step 1's forward and backward chains, a tracked frame's two hypotheses, the
+    refinement's frames and step 2's ensemble seeds two at a time
+    (``pointrig.registration._CHAIN_WORKERS``, ``pointrig.joints._TRACK_WORKERS``,
     ``pointrig.registration._REFINE_WORKERS``, ``pointrig.structure._ENSEMBLE_WORKERS``) give
     bit for bit the skeleton of one after the other."""
     import pointrig.joints as joints_mod
@@ -54,13 +55,15 @@ def test_pipeline_is_worker_count_independent(monkeypatch):
     cfg = PipelineConfig()
     assert cfg.joints.track_from_structure and cfg.registration.refine_rounds >= 1
     assert cfg.structure.ensemble_seeds > 1
-    assert min(joints_mod._TRACK_WORKERS, reg_mod._REFINE_WORKERS,
+    assert min(joints_mod._TRACK_WORKERS, reg_mod._REFINE_WORKERS, reg_mod._CHAIN_WORKERS,
                structure_mod._ENSEMBLE_WORKERS) > 1
     side = extract(seq, cfg, None, pictures=False)
     monkeypatch.setattr(joints_mod, "_TRACK_WORKERS", 1)
     monkeypatch.setattr(reg_mod, "_REFINE_WORKERS", 1)
+    monkeypatch.setattr(reg_mod, "_CHAIN_WORKERS", 1)
     monkeypatch.setattr(structure_mod, "_ENSEMBLE_WORKERS", 1)
     alone = extract(seq, cfg, None, pictures=False)
+    np.testing.assert_array_equal(side.registration.points, alone.registration.points)
     np.testing.assert_array_equal(side.refined_registration.points,
                                   alone.refined_registration.points)
     np.testing.assert_array_equal(side.structure.labels, alone.structure.labels)

@@ -19,7 +19,8 @@ import hashlib
 import json
 import logging
 from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
+import threading
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -59,6 +60,8 @@ _FORMAT_VERSION = 1
 _NOT_IN_KEY = frozenset({"refine_rounds"})
 #: threads for :func:`refine_registration`'s independent frames (1 = one after the other)
 _REFINE_WORKERS = 2
+#: threads for :func:`register_sequence`'s forward and backward chains (1 = one after the other)
+_CHAIN_WORKERS = 2
 
 
 @dataclass
@@ -424,12 +427,15 @@ def register_sequence(
     iters = np.zeros(f, dtype=np.int64)
     energy = np.zeros(f)
     matched = np.zeros(f)
-    order = list(range(rf, f)) + list(range(rf - 1, -1, -1))
     eye = np.ascontiguousarray(np.broadcast_to(np.eye(3), (j, 3, 3)))
     zero = np.zeros((j, 3))
     hist: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-    done = 0
-    for t in order:
+    lock = threading.Lock()
+    count = [0]
+    stop = threading.Event()
+
+    def one(t: int) -> None:
+        """Register frame ``t`` from its neighbour's result (towards the rest frame)."""
         step = 1 if t >= rf else -1
         prev = hist.get(t - step)
         prev2 = hist.get(t - 2 * step)
@@ -453,9 +459,10 @@ def register_sequence(
                 log.debug("frame %d: the previous pose explains it better than the prediction "
                           "(misfit %.4f < %.4f m); holding it", t, m_hold, m_pred)
                 r_init, t_init = prev[0].copy(), prev[1].copy()
+        kw_t = dict(kw)
         if config.normal_kappa > 0:
-            kw["x_normals"] = estimate_normals(x, normal_radius)
-        res = _register_one(g, x, r_init, t_init, config, kw)
+            kw_t["x_normals"] = estimate_normals(x, normal_radius)
+        res = _register_one(g, x, r_init, t_init, config, kw_t)
         frac = res["n_p"] / max(res["n_data"], 1)
         if frac < config.lost_fraction and prev is not None:
             log.warning(
@@ -463,7 +470,7 @@ def register_sequence(
                 t, frac, config.lost_fraction,
             )
             retry = _register_one(
-                g, x, prev[0], prev[1], config, kw,
+                g, x, prev[0], prev[1], config, kw_t,
                 sigma2_start=4.0 * config.sigma2_start_max, extra_rigid=3,
             )
             if retry["n_p"] > res["n_p"]:
@@ -475,9 +482,31 @@ def register_sequence(
         iters[t] = res["iterations"]
         energy[t] = res["energy"]
         matched[t] = frac
-        done += 1
-        if progress is not None:
-            progress(done, f)
+        with lock:
+            count[0] += 1
+            if progress is not None:
+                progress(count[0], f)
+
+    def chain(frames: list[int]) -> None:
+        for t in frames:
+            if stop.is_set():
+                return
+            one(t)
+
+    # The rest frame, then the first frame after it (the first frame before it predicts from
+    # both); from there the forward and the backward chains depend on nothing of each other
+    # and run side by side (the native calls and the k-d tree queries release the GIL), each
+    # with the same arithmetic as one after the other.
+    chain([rf] + ([rf + 1] if rf + 1 < f else []))
+    pool = ThreadPoolExecutor(max_workers=_CHAIN_WORKERS)
+    try:
+        futures = [pool.submit(chain, c) for c in (list(range(rf + 2, f)),
+                                                   list(range(rf - 1, -1, -1))) if c]
+        for fut in as_completed(futures):
+            fut.result()  # the first error stops the other chain at its next frame
+    finally:
+        stop.set()
+        pool.shutdown(cancel_futures=True)
     return RegistrationResult(
         rest_points=rest,
         points=points,
