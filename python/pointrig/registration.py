@@ -431,11 +431,12 @@ def register_sequence(
     zero = np.zeros((j, 3))
     hist: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     lock = threading.Lock()
-    count = [0]
+    done = 0
     stop = threading.Event()
 
     def one(t: int) -> None:
         """Register frame ``t`` from its neighbour's result (towards the rest frame)."""
+        nonlocal done
         step = 1 if t >= rf else -1
         prev = hist.get(t - step)
         prev2 = hist.get(t - 2 * step)
@@ -483,9 +484,9 @@ def register_sequence(
         energy[t] = res["energy"]
         matched[t] = frac
         with lock:
-            count[0] += 1
+            done += 1
             if progress is not None:
-                progress(count[0], f)
+                progress(done, f)
 
     def chain(frames: list[int]) -> None:
         for t in frames:
