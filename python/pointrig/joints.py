@@ -488,7 +488,8 @@ def track_bones(
     keeps what step 1 got right (a rigid-bone prediction drifts on smoothly bending bodies).
     The prediction itself gives way to the previous frame's pose when that pose's misfit is
     below ``track_predict_check`` times the prediction's (after a jump the prediction repeats
-    it).
+    it). A frame's two fits run side by side on two threads (the same result as one after the
+    other).
     Frames without points keep the prediction.
 
     Parameters

@@ -382,7 +382,9 @@ def register_sequence(
     Frames after the rest frame are registered forwards from it and frames before it
     backwards, each starting from its neighbour's result (with constant-velocity prediction
     when ``predict_velocity > 0``, kept only if it explains the frame better than the
-    neighbour's own pose, ``predict_check``).
+    neighbour's own pose, ``predict_check``). The two chains run side by side on two threads
+    once the rest frame and the frame after it are done; the result is the same as one after
+    the other (``tests/test_determinism.py``).
 
     Parameters
     ----------
