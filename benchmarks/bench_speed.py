@@ -22,7 +22,7 @@ import argparse
 import sys
 import time
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
 import numpy as np
@@ -98,10 +98,7 @@ def main(argv: list[str]) -> int:
         poses: dict[str, np.ndarray] = {}
         for _ in range(a.repeats):
             for form in ("serial", "default"):
-                if form == "serial":
-                    with serial():
-                        secs, P = timed(seq, cfg)
-                else:
+                with serial() if form == "serial" else nullcontext():
                     secs, P = timed(seq, cfg)
                 poses[form] = P
                 if form not in best or secs["total"] < best[form]["total"]:

@@ -582,8 +582,7 @@ def track_bones(
     order = [rest_index] + list(range(rest_index + 1, F)) + list(range(rest_index - 1, -1, -1))
     # a frame's hypotheses are independent fits: they run side by side (the native calls and
     # the k-d tree queries release the GIL), each with the same arithmetic as alone
-    pool = ThreadPoolExecutor(max_workers=_TRACK_WORKERS)
-    try:
+    with ThreadPoolExecutor(max_workers=_TRACK_WORKERS) as pool:
         for done, t in enumerate(order, start=1):
             if progress is not None and done > 1:
                 progress(done - 1, F)
@@ -625,11 +624,9 @@ def track_bones(
 
             fit = partial(_fit_and_score, fit_frame, v, packed, tree, vn,
                           trunc if len(starts) > 1 else None)
-            fits = list(pool.map(fit, starts)) if len(starts) > 1 else [fit(starts[0])]
+            fits = list(pool.map(fit, starts))
             best = min(fits, key=lambda f: f[0])  # the first on a tie
             R[t], T[t] = best[1], best[2]
-    finally:
-        pool.shutdown()
     if progress is not None:
         progress(F, F)
     return R, T
