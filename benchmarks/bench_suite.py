@@ -1,5 +1,5 @@
 """The accuracy suite: the default pipeline (or variants of it) on the 14 sequences of
-:data:`bench_refine.SEQUENCES`, with the rounding spread.
+:data:`bench_refine.SEQUENCES` (or the validation set), with the rounding spread.
 
 Each variant is a JSON object of per-stage overrides of :class:`pointrig.config.PipelineConfig`
 (``{}`` = the defaults). Every sequence runs ``--repeats`` times per variant, repeat ``k > 0``
@@ -13,6 +13,11 @@ joint) and the recall of the procedural figures and of the glTF rigs::
     PYTHONPATH=python python benchmarks/bench_suite.py --repeats 2 '{}' \\
         '{"registration": {"rest_frame": "middle"}}'                        # an ablation
     PYTHONPATH=python python benchmarks/bench_suite.py --frames 40 --only human,hand
+    PYTHONPATH=python python benchmarks/bench_suite.py --set validation    # ~9 min a repeat
+
+``--set validation`` runs :data:`bench_refine.VALIDATION` instead: 16 sequences of the same
+figures and rigs with seeds, views and clips no change was tuned on (choose a variant on the
+suite, then check it there).
 
 ``--json FILE`` also writes every run's report.
 """
@@ -30,26 +35,30 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_refine import SEQUENCES, _jittered, selected, suite  # noqa: E402
+from bench_refine import SETS, _jittered, selected, suite  # noqa: E402
 from bench_registration_downstream import score_joints  # noqa: E402
 
 from pointrig.config import apply_overrides  # noqa: E402
 from pointrig.pipeline import extract  # noqa: E402
 
-PROCEDURAL = [n for n, (src, _) in SEQUENCES.items() if not src.endswith(".glb")]
+PROCEDURAL = {n for seqs in SETS.values() for n, (src, _) in seqs.items()
+              if not src.endswith(".glb")}
 
 
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("variants", nargs="*", default=["{}"], help="JSON overrides per variant")
     ap.add_argument("--frames", type=int, default=100)
+    ap.add_argument("--set", default="suite", choices=sorted(SETS),
+                    help="the sequences: the suite (default) or the held-back validation set")
     ap.add_argument("--only", default="", help="comma-separated sequence names")
     ap.add_argument("--repeats", type=int, default=1)
     ap.add_argument("--json", type=Path, default=None, help="write every run's report here")
     a = ap.parse_args(argv)
     if a.repeats < 1:
         ap.error("--repeats must be >= 1")
-    only = selected(ap, a.only)
+    sequences = SETS[a.set]
+    only = selected(ap, a.only, sequences)
     try:
         overs = [json.loads(v) for v in a.variants]
         cfgs = [apply_overrides(o, where=f"variant {v}") for v, o in enumerate(overs)]
@@ -59,8 +68,8 @@ def main(argv: list[str]) -> int:
     res: list[list[dict[str, tuple[float, ...]]]] = [[{} for _ in range(a.repeats)]
                                                      for _ in cfgs]
     reports: dict[str, dict] = {}
-    print(f"{'sequence':<16}" + "".join(f"{'variant ' + str(v):>34}" for v in range(len(cfgs))))
-    for name, syn in suite(a.frames, only):
+    print(f"{'sequence':<24}" + "".join(f"{'variant ' + str(v):>34}" for v in range(len(cfgs))))
+    for name, syn in suite(a.frames, only, sequences):
         seq0 = syn.to_point_sequence()
         cells = []
         for v, cfg in enumerate(cfgs):
@@ -76,7 +85,7 @@ def main(argv: list[str]) -> int:
             g = np.array([res[v][k][name] for k in range(a.repeats)])
             m = np.nanmean(g, axis=0) if np.isfinite(g[:, 3]).any() else g.mean(axis=0)
             cells.append(f"{m[0]:.2f}/{m[1]:.2f} {m[2]:5.2f} {m[3]:5.2f} ({m[4]:3.0f} s)")
-        print(f"{name:<16}" + "".join(f"{c:>34}" for c in cells), flush=True)
+        print(f"{name:<24}" + "".join(f"{c:>34}" for c in cells), flush=True)
         if a.json:
             a.json.write_text(json.dumps({"variants": overs, "runs": reports}, indent=1,
                                          default=str))

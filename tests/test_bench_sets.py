@@ -1,0 +1,66 @@
+"""The sequence sets of benchmarks/bench_refine.py: the validation set is held back from the
+suite (no sequence of one is a sequence of the other) and every entry can be synthesised."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+
+import bench_refine  # noqa: E402
+
+from pointrig.synth import FIGURES  # noqa: E402
+
+
+def _key(source: str, kw: dict) -> tuple:
+    return (Path(source).name, tuple(sorted(kw.items())))
+
+
+def test_validation_set_is_disjoint_from_the_suite() -> None:
+    """No name, and no (figure or rig, synthesis keywords) pair, is in both sets; every seed of
+    the validation set is one the suite does not use, so its noise and motion are new too."""
+    suite, val = bench_refine.SEQUENCES, bench_refine.VALIDATION
+    assert not set(suite) & set(val)
+    assert not {_key(*v) for v in suite.values()} & {_key(*v) for v in val.values()}
+    assert not {kw["seed"] for _, kw in suite.values()} & {kw["seed"] for _, kw in val.values()}
+    assert set(bench_refine.SETS) == {"suite", "validation"}
+
+
+@pytest.mark.parametrize("name", sorted(bench_refine.VALIDATION))
+def test_validation_entries_name_a_figure_or_a_rig(name: str) -> None:
+    """Each source is a procedural figure or a .glb under the shared models folder, and the
+    keywords are ones the benchmark's synthesis takes."""
+    source, kw = bench_refine.VALIDATION[name]
+    if source.endswith(".glb"):
+        assert Path(source).parent == bench_refine._MODELS
+    else:
+        assert source in FIGURES
+    assert set(kw) <= {"seed", "yaw", "walk", "clip", "start", "camera"}
+
+
+def test_selected_checks_names_against_the_chosen_set() -> None:
+    """``--only`` names are checked against the set in use: a validation name is unknown to
+    the suite and known to the validation set."""
+    ap = argparse.ArgumentParser()
+    assert bench_refine.selected(ap, "v_hand,v_human", bench_refine.VALIDATION) == {
+        "v_hand", "v_human"}
+    with pytest.raises(SystemExit):
+        bench_refine.selected(ap, "v_hand")
+    with pytest.raises(SystemExit):
+        bench_refine.selected(ap, "human", bench_refine.VALIDATION)
+
+
+def test_suite_iterates_the_chosen_set(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``suite(..., sequences)`` yields the chosen set's names in order, synthesising each
+    with its own keywords."""
+    calls = []
+    monkeypatch.setattr(bench_refine, "_synth", lambda src, kw, frames: calls.append(
+        (src, kw, frames)) or len(calls))
+    sub = {n: bench_refine.VALIDATION[n] for n in ("v_human", "v_hand")}
+    got = list(bench_refine.suite(5, set(), sub))
+    assert [n for n, _ in got] == ["v_human", "v_hand"]
+    assert calls == [(s, kw, 5) for s, kw in sub.values()]
