@@ -16,6 +16,7 @@ the sequences where every variant matches a joint)::
     PYTHONPATH=python python benchmarks/bench_step3.py --cache /tmp/step3 '{}' \\
         '{"joint_prior": 0.3}'
     PYTHONPATH=python python benchmarks/bench_step3.py --cache /tmp/step3 --only human,girl_run
+    PYTHONPATH=python python benchmarks/bench_step3.py --cache /tmp/step3 --set validation
 
 A cache is valid for the code and defaults that wrote it; delete it after changing steps 1-2.
 The whole-pipeline effect of a change is measured by ``bench_suite.py`` (step 3 runs twice
@@ -37,7 +38,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_refine import selected, suite  # noqa: E402
+from bench_refine import SETS, selected, suite  # noqa: E402
 from bench_registration_downstream import score_joints  # noqa: E402
 
 from pointrig.config import (  # noqa: E402
@@ -121,18 +122,20 @@ def depth_bias(joint_positions: np.ndarray, syn: Any, report: Any) -> float:
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cache", required=True, help="directory of the cached step-3 inputs")
+    ap.add_argument("--set", default="suite", choices=sorted(SETS),
+                    help="the sequences: the suite (default) or the held-back validation set")
     ap.add_argument("--only", default="", help="comma-separated sequence names")
     ap.add_argument("--frames", type=int, default=100)
     ap.add_argument("variants", nargs="*", help="JSON [joints] overrides per variant")
     a = ap.parse_args(argv)
-    only = selected(ap, a.only)
+    only = selected(ap, a.only, SETS[a.set])
     variants = [json.loads(v) for v in a.variants] or [{}]
     cfgs: list[JointsConfig] = [apply_overrides({"joints": v}).joints for v in variants]
     structure_cfg = StructureConfig()
     rows: dict[int, list[tuple[float, ...]]] = {k: [] for k in range(len(variants))}
-    print(f"{'sequence':<16} " + " | ".join(
+    print(f"{'sequence':<24} " + " | ".join(
         f"variant {k}: rec/prec raw norm depth (s)" for k in range(len(variants))))
-    for name, syn in suite(a.frames, only):
+    for name, syn in suite(a.frames, only, SETS[a.set]):
         d = cached_inputs(name, syn, Path(a.cache))
         st = d["structure"]
         cells = []
@@ -144,7 +147,7 @@ def main(argv: list[str]) -> int:
                             100 * db))
             cells.append(f"{r.recall:.2f}/{r.precision:.2f} {100 * r.raw_error:5.2f} "
                          f"{100 * r.normalized_error:5.2f} {100 * db:+5.2f} ({secs:3.0f})")
-        print(f"{name:<16} " + " | ".join(cells), flush=True)
+        print(f"{name:<24} " + " | ".join(cells), flush=True)
     if not rows[0]:
         return 0
     arr, ok = summary(rows, "variant")

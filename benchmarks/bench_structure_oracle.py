@@ -18,6 +18,8 @@ normalised error (cm) and the bone count per sequence and rung, then the means::
     PYTHONPATH=python python benchmarks/bench_structure_oracle.py --cache /tmp/step3
     PYTHONPATH=python python benchmarks/bench_structure_oracle.py --cache /tmp/step3 \\
         --only human,girl_run
+    PYTHONPATH=python python benchmarks/bench_structure_oracle.py --cache /tmp/step3 \\
+        --set validation --only v_hand,v_girl_idle_y40
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ from scipy.spatial import cKDTree
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_refine import selected, suite  # noqa: E402
+from bench_refine import SETS, selected, suite  # noqa: E402
 from bench_registration_downstream import score_joints  # noqa: E402
 from bench_step3 import cached_inputs, step3_skeleton, summary  # noqa: E402
 
@@ -69,14 +71,16 @@ def structures(d: dict[str, Any], syn: Any, cfg: PipelineConfig) -> dict[str, An
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cache", required=True, help="directory of the cached step-3 inputs")
+    ap.add_argument("--set", default="suite", choices=sorted(SETS),
+                    help="the sequences: the suite (default) or the held-back validation set")
     ap.add_argument("--only", default="", help="comma-separated sequence names")
     ap.add_argument("--frames", type=int, default=100)
     a = ap.parse_args(argv)
-    only = selected(ap, a.only)
+    only = selected(ap, a.only, SETS[a.set])
     cfg = PipelineConfig()
     rows: dict[str, list[tuple[float, ...]]] = {k: [] for k in RUNGS}
-    print(f"{'sequence':<16} " + " | ".join(f"{k}: rec/prec raw norm B" for k in RUNGS))
-    for name, syn in suite(a.frames, only):
+    print(f"{'sequence':<24} " + " | ".join(f"{k}: rec/prec raw norm B" for k in RUNGS))
+    for name, syn in suite(a.frames, only, SETS[a.set]):
         d = cached_inputs(name, syn, Path(a.cache))
         t0 = time.perf_counter()
         cells = []
@@ -88,7 +92,7 @@ def main(argv: list[str]) -> int:
                                100 * r.normalized_error, B))
             cells.append(f"{r.recall:.2f}/{r.precision:.2f} {100 * r.raw_error:5.2f} "
                          f"{100 * r.normalized_error:5.2f} {B:2d}")
-        print(f"{name:<16} " + " | ".join(cells) + f"  ({time.perf_counter() - t0:.0f} s)",
+        print(f"{name:<24} " + " | ".join(cells) + f"  ({time.perf_counter() - t0:.0f} s)",
               flush=True)
     if not rows[RUNGS[0]]:
         return 0
