@@ -106,6 +106,12 @@ def _synth(source: str, kw: dict, frames: int):
                       noise=dataclasses.replace(NoiseConfig(), outliers=0.02), **kw)
 
 
+def add_set_option(ap: argparse.ArgumentParser) -> None:
+    """Add ``--set`` (a key of :data:`SETS`, default ``"suite"``) to a benchmark's parser."""
+    ap.add_argument("--set", default="suite", choices=sorted(SETS),
+                    help="the sequences: the suite (default) or the held-back validation set")
+
+
 def selected(ap: argparse.ArgumentParser, only_arg: str,
              sequences: dict[str, tuple[str, dict]] = SEQUENCES) -> set[str]:
     """The names of ``--only`` (comma-separated; empty = all) among ``sequences``, or

@@ -38,7 +38,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_refine import SETS, selected, suite  # noqa: E402
+from bench_refine import SETS, add_set_option, selected, suite  # noqa: E402
 from bench_registration_downstream import score_joints  # noqa: E402
 
 from pointrig.config import (  # noqa: E402
@@ -122,8 +122,7 @@ def depth_bias(joint_positions: np.ndarray, syn: Any, report: Any) -> float:
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cache", required=True, help="directory of the cached step-3 inputs")
-    ap.add_argument("--set", default="suite", choices=sorted(SETS),
-                    help="the sequences: the suite (default) or the held-back validation set")
+    add_set_option(ap)
     ap.add_argument("--only", default="", help="comma-separated sequence names")
     ap.add_argument("--frames", type=int, default=100)
     ap.add_argument("variants", nargs="*", help="JSON [joints] overrides per variant")

@@ -36,7 +36,7 @@ from scipy.spatial import cKDTree
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_refine import SETS, selected, suite  # noqa: E402
+from bench_refine import SETS, add_set_option, selected, suite  # noqa: E402
 from bench_registration_downstream import score_joints  # noqa: E402
 from bench_step3 import cached_inputs, step3_skeleton, summary  # noqa: E402
 
@@ -71,8 +71,7 @@ def structures(d: dict[str, Any], syn: Any, cfg: PipelineConfig) -> dict[str, An
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cache", required=True, help="directory of the cached step-3 inputs")
-    ap.add_argument("--set", default="suite", choices=sorted(SETS),
-                    help="the sequences: the suite (default) or the held-back validation set")
+    add_set_option(ap)
     ap.add_argument("--only", default="", help="comma-separated sequence names")
     ap.add_argument("--frames", type=int, default=100)
     a = ap.parse_args(argv)

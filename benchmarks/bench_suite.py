@@ -35,7 +35,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_refine import SETS, _jittered, selected, suite  # noqa: E402
+from bench_refine import SETS, add_set_option, _jittered, selected, suite  # noqa: E402
 from bench_registration_downstream import score_joints  # noqa: E402
 
 from pointrig.config import apply_overrides  # noqa: E402
@@ -49,8 +49,7 @@ def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("variants", nargs="*", default=["{}"], help="JSON overrides per variant")
     ap.add_argument("--frames", type=int, default=100)
-    ap.add_argument("--set", default="suite", choices=sorted(SETS),
-                    help="the sequences: the suite (default) or the held-back validation set")
+    add_set_option(ap)
     ap.add_argument("--only", default="", help="comma-separated sequence names")
     ap.add_argument("--repeats", type=int, default=1)
     ap.add_argument("--json", type=Path, default=None, help="write every run's report here")

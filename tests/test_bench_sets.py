@@ -64,3 +64,14 @@ def test_suite_iterates_the_chosen_set(monkeypatch: pytest.MonkeyPatch) -> None:
     got = list(bench_refine.suite(5, set(), sub))
     assert [n for n, _ in got] == ["v_human", "v_hand"]
     assert calls == [(s, kw, 5) for s, kw in sub.values()]
+
+
+def test_set_option_defaults_to_the_suite_and_names_every_set() -> None:
+    """``--set`` parses to a key of ``SETS`` (the suite by default) and rejects other names."""
+    ap = argparse.ArgumentParser()
+    bench_refine.add_set_option(ap)
+    assert ap.parse_args([]).set == "suite"
+    assert bench_refine.SETS[ap.parse_args(["--set", "validation"]).set] is \
+        bench_refine.VALIDATION
+    with pytest.raises(SystemExit):
+        ap.parse_args(["--set", "heldout"])
