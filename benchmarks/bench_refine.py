@@ -123,6 +123,14 @@ def selected(ap: argparse.ArgumentParser, only_arg: str,
     return only
 
 
+def chosen(ap: argparse.ArgumentParser, args: argparse.Namespace
+           ) -> tuple[dict[str, tuple[str, dict]], set[str]]:
+    """The sequences of ``args.set`` (:func:`add_set_option`) and the names of ``args.only``
+    among them (:func:`selected`)."""
+    sequences = SETS[args.set]
+    return sequences, selected(ap, args.only, sequences)
+
+
 def suite(frames: int, only: set[str],
           sequences: dict[str, tuple[str, dict]] = SEQUENCES) -> Iterator[tuple[str, Any]]:
     """``(name, synthesized sequence)`` for each of ``sequences`` (default :data:`SEQUENCES`)

@@ -38,7 +38,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_refine import SETS, add_set_option, selected, suite  # noqa: E402
+from bench_refine import add_set_option, chosen, suite  # noqa: E402
 from bench_registration_downstream import score_joints  # noqa: E402
 
 from pointrig.config import (  # noqa: E402
@@ -127,14 +127,14 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--frames", type=int, default=100)
     ap.add_argument("variants", nargs="*", help="JSON [joints] overrides per variant")
     a = ap.parse_args(argv)
-    only = selected(ap, a.only, SETS[a.set])
+    sequences, only = chosen(ap, a)
     variants = [json.loads(v) for v in a.variants] or [{}]
     cfgs: list[JointsConfig] = [apply_overrides({"joints": v}).joints for v in variants]
     structure_cfg = StructureConfig()
     rows: dict[int, list[tuple[float, ...]]] = {k: [] for k in range(len(variants))}
     print(f"{'sequence':<24} " + " | ".join(
         f"variant {k}: rec/prec raw norm depth (s)" for k in range(len(variants))))
-    for name, syn in suite(a.frames, only, SETS[a.set]):
+    for name, syn in suite(a.frames, only, sequences):
         d = cached_inputs(name, syn, Path(a.cache))
         st = d["structure"]
         cells = []

@@ -36,7 +36,7 @@ from scipy.spatial import cKDTree
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_refine import SETS, add_set_option, selected, suite  # noqa: E402
+from bench_refine import add_set_option, chosen, suite  # noqa: E402
 from bench_registration_downstream import score_joints  # noqa: E402
 from bench_step3 import cached_inputs, step3_skeleton, summary  # noqa: E402
 
@@ -75,11 +75,11 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--only", default="", help="comma-separated sequence names")
     ap.add_argument("--frames", type=int, default=100)
     a = ap.parse_args(argv)
-    only = selected(ap, a.only, SETS[a.set])
+    sequences, only = chosen(ap, a)
     cfg = PipelineConfig()
     rows: dict[str, list[tuple[float, ...]]] = {k: [] for k in RUNGS}
     print(f"{'sequence':<24} " + " | ".join(f"{k}: rec/prec raw norm B" for k in RUNGS))
-    for name, syn in suite(a.frames, only, SETS[a.set]):
+    for name, syn in suite(a.frames, only, sequences):
         d = cached_inputs(name, syn, Path(a.cache))
         t0 = time.perf_counter()
         cells = []

@@ -35,15 +35,11 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_refine import SETS, add_set_option, _jittered, selected, suite  # noqa: E402
+from bench_refine import _jittered, add_set_option, chosen, suite  # noqa: E402
 from bench_registration_downstream import score_joints  # noqa: E402
 
 from pointrig.config import apply_overrides  # noqa: E402
 from pointrig.pipeline import extract  # noqa: E402
-
-PROCEDURAL = {n for seqs in SETS.values() for n, (src, _) in seqs.items()
-              if not src.endswith(".glb")}
-
 
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -56,8 +52,8 @@ def main(argv: list[str]) -> int:
     a = ap.parse_args(argv)
     if a.repeats < 1:
         ap.error("--repeats must be >= 1")
-    sequences = SETS[a.set]
-    only = selected(ap, a.only, sequences)
+    sequences, only = chosen(ap, a)
+    procedural = {n for n, (src, _) in sequences.items() if not src.endswith(".glb")}
     try:
         overs = [json.loads(v) for v in a.variants]
         cfgs = [apply_overrides(o, where=f"variant {v}") for v, o in enumerate(overs)]
@@ -100,8 +96,8 @@ def main(argv: list[str]) -> int:
         for k, r in enumerate(rv):
             m = np.array([r[n] for n in names])
             e = np.array([r[n] for n in every]).reshape(-1, 5)
-            proc = [r[n][0] for n in names if n in PROCEDURAL]
-            gl = [r[n][0] for n in names if n not in PROCEDURAL]
+            proc = [r[n][0] for n in names if n in procedural]
+            gl = [r[n][0] for n in names if n not in procedural]
             f = lambda x: f"{np.mean(x):.3f}" if len(x) else "-"  # noqa: E731
             print(f"variant {v} repeat {k}: recall {m[:, 0].mean():.3f} precision "
                   f"{m[:, 1].mean():.3f} raw {e[:, 2].mean() if len(e) else np.nan:.2f} cm "

@@ -75,3 +75,18 @@ def test_set_option_defaults_to_the_suite_and_names_every_set() -> None:
         bench_refine.VALIDATION
     with pytest.raises(SystemExit):
         ap.parse_args(["--set", "heldout"])
+
+
+def test_chosen_gives_the_set_and_its_selected_names() -> None:
+    """``chosen`` returns the sequences of ``--set`` and the ``--only`` names checked against
+    them."""
+    ap = argparse.ArgumentParser()
+    bench_refine.add_set_option(ap)
+    ap.add_argument("--only", default="")
+    seqs, only = bench_refine.chosen(ap, ap.parse_args(["--set", "validation", "--only",
+                                                        "v_hand"]))
+    assert seqs is bench_refine.VALIDATION and only == {"v_hand"}
+    seqs, only = bench_refine.chosen(ap, ap.parse_args([]))
+    assert seqs is bench_refine.SEQUENCES and only == set()
+    with pytest.raises(SystemExit):
+        bench_refine.chosen(ap, ap.parse_args(["--only", "v_hand"]))
