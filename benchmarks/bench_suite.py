@@ -37,6 +37,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_refine import _jittered, add_set_option, chosen, suite  # noqa: E402
 from bench_registration_downstream import score_joints  # noqa: E402
+from compare_runs import common_means, run_from_reports  # noqa: E402
 
 from pointrig.config import apply_overrides  # noqa: E402
 from pointrig.pipeline import extract  # noqa: E402
@@ -84,25 +85,22 @@ def main(argv: list[str]) -> int:
         if a.json:
             a.json.write_text(json.dumps({"variants": overs, "runs": reports}, indent=1,
                                          default=str))
-    names = list(res[0][0])
-    if not names:
+    if not res[0][0]:
         return 0
-    every = [n for n in names
-             if all(np.isfinite(r[n][3]) for rv in res for r in rv)]
+    keys = [(v, k) for v in range(len(cfgs)) for k in range(a.repeats)]
+    names, every, means = common_means([run_from_reports(reports, v, k, f"{v}/{k}")
+                                        for v, k in keys])
     print(f"\nmeans over {len(names)} sequences of {a.frames} frames (raw / normalised over the "
           f"{len(every)} where every run matches a joint); recall of the procedural figures / "
           "the glTF rigs:")
-    for v, rv in enumerate(res):
-        for k, r in enumerate(rv):
-            m = np.array([r[n] for n in names])
-            e = np.array([r[n] for n in every]).reshape(-1, 5)
-            proc = [r[n][0] for n in names if n in procedural]
-            gl = [r[n][0] for n in names if n not in procedural]
-            f = lambda x: f"{np.mean(x):.3f}" if len(x) else "-"  # noqa: E731
-            print(f"variant {v} repeat {k}: recall {m[:, 0].mean():.3f} precision "
-                  f"{m[:, 1].mean():.3f} raw {e[:, 2].mean() if len(e) else np.nan:.2f} cm "
-                  f"normalised {e[:, 3].mean() if len(e) else np.nan:.2f} cm; procedural "
-                  f"{f(proc)} glTF {f(gl)}; {m[:, 4].sum():.0f} s  {a.variants[v]}")
+    for (v, k), m in zip(keys, means):
+        r = res[v][k]
+        proc = [r[n][0] for n in names if n in procedural]
+        gl = [r[n][0] for n in names if n not in procedural]
+        f = lambda x: f"{np.mean(x):.3f}" if len(x) else "-"  # noqa: E731
+        print(f"variant {v} repeat {k}: recall {m[0]:.3f} precision {m[1]:.3f} raw "
+              f"{100 * m[2]:.2f} cm normalised {100 * m[3]:.2f} cm; procedural {f(proc)} glTF "
+              f"{f(gl)}; {sum(r[n][4] for n in names):.0f} s  {a.variants[v]}")
     return 0
 
 

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-__all__ = ["Run", "load_run", "common_means", "main"]
+__all__ = ["Run", "run_from_reports", "load_run", "common_means", "main"]
 
 
 @dataclass(frozen=True)
@@ -59,6 +59,23 @@ def _parse(spec: str) -> tuple[Path, int, int]:
     return Path(rest), variant, repeat
 
 
+def _error(report: dict[str, Any], name: str) -> float:
+    v = report.get(name)
+    return float("nan") if v is None else float(v)
+
+
+def run_from_reports(reports: dict[str, dict[str, Any]], variant: int, repeat: int,
+                     label: str) -> Run:
+    """The run of ``variant`` and ``repeat`` out of ``bench_suite.py``'s reports
+    (``"VARIANT/REPEAT/NAME"`` -> an :class:`pointrig.evaluate.EvalReport` as a dict, errors in
+    metres, ``None`` where nothing matched), named ``label``; empty if it holds none."""
+    prefix = f"{variant}/{repeat}/"
+    rows = {key[len(prefix):]: (float(rep["recall"]), float(rep["precision"]),
+                                _error(rep, "raw_error"), _error(rep, "normalized_error"))
+            for key, rep in reports.items() if key.startswith(prefix)}
+    return Run(label, rows)
+
+
 def load_run(spec: str) -> Run:
     """The run named by ``spec`` (``FILE[:VARIANT][@REPEAT]``).
 
@@ -70,27 +87,15 @@ def load_run(spec: str) -> Run:
     """
     path, variant, repeat = _parse(spec)
     try:
-        data: Any = json.loads(path.read_text())
-        runs = data["runs"]
+        runs = json.loads(path.read_text())["runs"]
+        run = run_from_reports(runs, variant, repeat, spec)
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise ValueError(f"{path}: not a bench_suite.py --json file ({exc})") from exc
-    prefix = f"{variant}/{repeat}/"
-    rows: dict[str, tuple[float, float, float, float]] = {}
-    for key, rep in runs.items():
-        if not key.startswith(prefix):
-            continue
-
-        def err(name: str) -> float:
-            v = rep.get(name)
-            return float("nan") if v is None else float(v)
-
-        rows[key[len(prefix):]] = (float(rep["recall"]), float(rep["precision"]),
-                                   err("raw_error"), err("normalized_error"))
-    if not rows:
+    if not run.rows:
         held = sorted({"/".join(k.split("/")[:2]) for k in runs})
         raise ValueError(f"{path}: no runs of variant {variant} repeat {repeat} "
                          f"(it holds variant/repeat {', '.join(held) or 'nothing'})")
-    return Run(spec, rows)
+    return run
 
 
 def common_means(runs: list[Run]) -> tuple[list[str], list[str],
