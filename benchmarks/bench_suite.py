@@ -60,47 +60,46 @@ def main(argv: list[str]) -> int:
         cfgs = [apply_overrides(o, where=f"variant {v}") for v, o in enumerate(overs)]
     except (ValueError, AttributeError) as exc:  # bad JSON, a ConfigError, not a mapping
         ap.error(f"bad variant: {exc}")
-    # res[v][k][name] = (recall, precision, raw cm, normalised cm, seconds)
-    res: list[list[dict[str, tuple[float, ...]]]] = [[{} for _ in range(a.repeats)]
-                                                     for _ in cfgs]
+    # every run's report (errors in metres) and seconds, keyed "variant/repeat/name"
     reports: dict[str, dict] = {}
     print(f"{'sequence':<24}" + "".join(f"{'variant ' + str(v):>34}" for v in range(len(cfgs))))
     for name, syn in suite(a.frames, only, sequences):
         seq0 = syn.to_point_sequence()
         cells = []
         for v, cfg in enumerate(cfgs):
+            rows = []  # per repeat: recall, precision, raw cm, normalised cm, seconds
             for k in range(a.repeats):
                 seq = seq0 if k == 0 else _jittered(seq0, k)
                 t0 = time.perf_counter()
                 out = extract(seq, cfg, None, pictures=False)
                 secs = time.perf_counter() - t0
                 rep = score_joints(out.skeleton.joint_positions, syn)
-                res[v][k][name] = (rep.recall, rep.precision, 100 * rep.raw_error,
-                                   100 * rep.normalized_error, secs)
+                rows.append((rep.recall, rep.precision, 100 * rep.raw_error,
+                             100 * rep.normalized_error, secs))
                 reports[f"{v}/{k}/{name}"] = rep.to_dict() | {"seconds": secs}
-            g = np.array([res[v][k][name] for k in range(a.repeats)])
+            g = np.array(rows)
             m = np.nanmean(g, axis=0) if np.isfinite(g[:, 3]).any() else g.mean(axis=0)
             cells.append(f"{m[0]:.2f}/{m[1]:.2f} {m[2]:5.2f} {m[3]:5.2f} ({m[4]:3.0f} s)")
         print(f"{name:<24}" + "".join(f"{c:>34}" for c in cells), flush=True)
         if a.json:
             a.json.write_text(json.dumps({"variants": overs, "runs": reports}, indent=1,
                                          default=str))
-    if not res[0][0]:
+    if not reports:
         return 0
     keys = [(v, k) for v in range(len(cfgs)) for k in range(a.repeats)]
-    names, every, means = common_means([run_from_reports(reports, v, k, f"{v}/{k}")
-                                        for v, k in keys])
+    runs = [run_from_reports(reports, v, k, f"{v}/{k}") for v, k in keys]
+    names, every, means = common_means(runs)
     print(f"\nmeans over {len(names)} sequences of {a.frames} frames (raw / normalised over the "
           f"{len(every)} where every run matches a joint); recall of the procedural figures / "
           "the glTF rigs:")
-    for (v, k), m in zip(keys, means):
-        r = res[v][k]
-        proc = [r[n][0] for n in names if n in procedural]
-        gl = [r[n][0] for n in names if n not in procedural]
+    for (v, k), run, m in zip(keys, runs, means):
+        proc = [run.rows[n][0] for n in names if n in procedural]
+        gl = [run.rows[n][0] for n in names if n not in procedural]
         f = lambda x: f"{np.mean(x):.3f}" if len(x) else "-"  # noqa: E731
+        secs = sum(reports[f"{v}/{k}/{n}"]["seconds"] for n in names)
         print(f"variant {v} repeat {k}: recall {m[0]:.3f} precision {m[1]:.3f} raw "
               f"{100 * m[2]:.2f} cm normalised {100 * m[3]:.2f} cm; procedural {f(proc)} glTF "
-              f"{f(gl)}; {sum(r[n][4] for n in names):.0f} s  {a.variants[v]}")
+              f"{f(gl)}; {secs:.0f} s  {a.variants[v]}")
     return 0
 
 
