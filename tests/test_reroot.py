@@ -155,3 +155,51 @@ def test_leaf_root_choice_is_validated() -> None:
 
     with pytest.raises(ConfigError, match="leaf_root"):
         StructureConfig(leaf_root="middle")
+
+
+def _torso_with_legs(r: float = 0.15, depth: float = 2.5) -> tuple[np.ndarray, ...]:
+    """What a depth camera at the origin looking along +z sees of a round torso (radius ``r``,
+    axis vertical at ``x = 0, z = depth``, 0.6 m tall) with two legs hanging below: the near
+    half of each cylinder, sampled uniformly across the image (metres). Returns rest points
+    (M, 3), labels (M,), parents (3,) (the torso is the root, with two children) and head
+    joints (3, 3): the torso's at the centroid of its visible points, the legs' at the hips."""
+    rng = np.random.default_rng(4)
+
+    def front(n: int, x0: float, radius: float, y0: float, y1: float) -> np.ndarray:
+        x = rng.uniform(-radius, radius, n)
+        y = rng.uniform(y0, y1, n)
+        return np.stack([x0 + x, y, depth - np.sqrt(radius ** 2 - x ** 2)], axis=1)
+
+    parts = [front(3000, 0.0, r, -0.3, 0.3), front(800, -0.08, 0.06, -1.2, -0.3),
+             front(800, 0.08, 0.06, -1.2, -0.3)]
+    Q = np.concatenate(parts)
+    labels = np.concatenate([np.full(len(p), b) for b, p in enumerate(parts)])
+    parent = np.array([-1, 0, 0])
+    joints = np.array([parts[0].mean(axis=0), [-0.08, -0.3, depth], [0.08, -0.3, depth]])
+    return Q, labels, parent, joints
+
+
+def test_output_root_joint_moves_back_to_the_axis_depth() -> None:
+    Q, labels, parent, joints = _torso_with_legs()
+    cfg = StructureConfig()
+    camera = np.zeros(3)
+    # the visible centroid lies pi r / 4 = 11.8 cm in front of the axis (closed form)
+    assert abs(joints[0][2] - (2.5 - np.pi * 0.15 / 4)) < 0.01
+    p2, j2 = output_tree(Q, labels, parent, joints, cfg, camera)
+    np.testing.assert_array_equal(p2, parent)
+    np.testing.assert_array_equal(j2[1:], joints[1:])  # only the root joint moves
+    assert abs(j2[0][2] - 2.5) < 0.02  # at the axis, within 2 cm
+    # along the camera ray through the joint: the same direction from the camera, farther
+    u0, u1 = joints[0] / np.linalg.norm(joints[0]), j2[0] / np.linalg.norm(j2[0])
+    np.testing.assert_allclose(u1, u0, atol=1e-12)
+    # "surface", or no camera, keeps the visible centroid
+    for c, cam in ((dataclasses.replace(cfg, root_depth="surface"), camera), (cfg, None)):
+        _, j3 = output_tree(Q, labels, parent, joints, c, cam)
+        np.testing.assert_array_equal(j3, joints)
+
+
+def test_root_depth_choice_is_validated() -> None:
+    from pointrig.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="root_depth"):
+        StructureConfig(root_depth="middle")

@@ -346,10 +346,14 @@ class StructureConfig:
     # output skeleton: a root that is a leaf of a branched tree (the largest part is a limb end,
     # e.g. a big head) moves to the body's centre ("centre"), or stays ("keep"); session 33
     leaf_root: str = "centre"
+    # output skeleton: the root joint (the visible root part's centre, or its end) moved back
+    # along the camera ray to the body's axis depth by the width rule on the rest points within
+    # 10 % of the size ("axis", session 38), or left on the visible surface ("surface", before)
+    root_depth: str = "axis"
 
     # --- single-view depth correction (our deviation, docs/structure.md) ---
     # one depth view sees only the near side of each part, so boundary centroids c~ lie in
-    # front of the joint: move each (not the root's centre) back along the camera ray to the
+    # front of the joint: move each back along the camera ray to the
     # depth of the part's axis (pointrig.view.view_depth_correct). "width" (session 13): the
     # (1 - q) quantile of its points' depths (the front) plus the radius from their width
     # across the view, (s_q - s_(1-q)) / (2 (2q - 1)) (unbiased for a round section sampled
@@ -368,6 +372,7 @@ class StructureConfig:
         _check_choices(self, "structure", {
             "merge_rule": ("angle", "both"), "merge_reference": ("range", "rest"),
             "root_choice": ("largest", "centroid"), "leaf_root": ("centre", "keep"),
+            "root_depth": ("axis", "surface"),
             "edge_weight": ("dislocation", "eq15"),
             "view_depth_method": ("width", "quantile"),
             "single_view": ("yes", "no", "auto")})

@@ -65,6 +65,7 @@ __all__ = [
     "output_tree",
     "tree_centre",
     "centre_root_joint",
+    "root_axis_joint",
     "leaf_root",
     "reroot",
 ]
@@ -1326,15 +1327,40 @@ def centre_root_joint(rest_points: np.ndarray, centre: np.ndarray,
     the rest points within ``ball`` times the rest points' bounding-box diagonal of ``centre``
     (:func:`tree_centre`), moved back along the camera ray to the depth of the body's axis
     (:func:`pointrig.view.view_depth_correct`) when ``view_camera`` is given."""
+    near = _ball_points(rest_points, centre, ball)
+    return _axis_depth(near, near.mean(axis=0), view_camera, view_quantile, view_method)
+
+
+def root_axis_joint(rest_points: np.ndarray, joint: np.ndarray,
+                    view_camera: np.ndarray | None = None, view_quantile: float = 0.95,
+                    view_method: str = "width", ball: float = 0.1) -> np.ndarray:
+    """Rest position ``(3,)`` (metres) of a root joint moved back along the camera ray from
+    ``joint`` (the visible root part's centre, or its end) to the depth of the body's axis
+    there: the single-view correction of :func:`pointrig.view.view_depth_correct` on the rest
+    points within ``ball`` times the rest points' bounding-box diagonal of ``joint``, as
+    :func:`centre_root_joint` does for a centre it finds itself. Only the depth changes;
+    ``joint`` is returned unchanged without ``view_camera``."""
+    near = _ball_points(rest_points, joint, ball)
+    return _axis_depth(near, np.asarray(joint, dtype=float), view_camera, view_quantile,
+                       view_method)
+
+
+def _ball_points(rest_points: np.ndarray, centre: np.ndarray, ball: float) -> np.ndarray:
+    """The rest points ``(n, 3)`` within ``ball`` x their bounding-box diagonal of ``centre``
+    (``centre`` itself when none is)."""
     Q = np.asarray(rest_points, dtype=float)
     radius = ball * float(np.linalg.norm(np.ptp(Q, axis=0)))
     near = Q[np.linalg.norm(Q - centre, axis=1) <= radius]
-    if len(near) == 0:
-        near = np.asarray(centre, dtype=float)[None]
-    c = near.mean(axis=0)
-    if view_camera is not None and view_quantile > 0:
-        c = view_depth_correct(near, None, c, view_camera, view_quantile, view_method)
-    return c
+    return near if len(near) else np.asarray(centre, dtype=float)[None]
+
+
+def _axis_depth(near: np.ndarray, c: np.ndarray, view_camera: np.ndarray | None,
+                view_quantile: float, view_method: str) -> np.ndarray:
+    """``c (3,)`` moved back to the axis depth of the points ``near (n, 3)``, or a copy of it
+    without a camera (metres)."""
+    if view_camera is None or view_quantile <= 0:
+        return np.array(c, dtype=float)
+    return view_depth_correct(near, None, c, view_camera, view_quantile, view_method)
 
 
 def output_tree(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np.ndarray,
@@ -1346,12 +1372,20 @@ def output_tree(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np.nda
     (:func:`leaf_root`: the largest part is a limb end, such as a big head) is moved to the
     body's centre (:func:`tree_centre`, :func:`centre_root_joint`, :func:`reroot`): its head
     joint would otherwise sit at the far end of that limb (``root_end_alignment``), where no
-    rig puts a joint. Chains (an arm, a snake) and roots with several children are unchanged.
-    The bones' motions do not change, only which joint heads which bone.
+    rig puts a joint. Chains (an arm, a snake) and roots with several children keep their
+    tree, and with ``cfg.root_depth = "axis"`` and a camera their root joint moves back along
+    the camera ray to the body's axis depth (:func:`root_axis_joint`, the correction every
+    other joint gets; the re-rooted centre gets it too). The bones' motions do not change, only
+    which joint heads which bone and where the root joint lies.
     """
     parent = np.asarray(bone_parent, dtype=np.int64)
     if cfg.leaf_root != "centre" or not leaf_root(parent):
-        return parent, np.asarray(joints_rest, dtype=float)
+        joints = np.array(joints_rest, dtype=float)
+        if cfg.root_depth == "axis":
+            root = int(np.flatnonzero(parent < 0)[0])
+            joints[root] = root_axis_joint(rest_points, joints[root], view_camera,
+                                           cfg.view_depth_quantile, cfg.view_depth_method)
+        return parent, joints
     centre, bone = tree_centre(rest_points, labels, parent, joints_rest)
     joint = centre_root_joint(rest_points, centre, view_camera, cfg.view_depth_quantile,
                               cfg.view_depth_method)
