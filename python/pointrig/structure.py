@@ -1116,8 +1116,9 @@ def _finish(ctx: _Ctx, labels: np.ndarray, R: np.ndarray, T: np.ndarray, counts:
     if view_camera is not None or c_tilde is None or joints is None:
         # single-view depth correction of the final c~ only: the refinement's pruning tests
         # keep the uncorrected (surface) joints, so the bone count does not depend on it.
-        # The root joint is not corrected: the root part can reach far back in depth (a torso
-        # seen side-on), and a quantile of its depths overshot by 20 cm on a 100-frame human
+        # The root joint is not corrected here: the root part can reach far back in depth (a
+        # torso seen side-on), and a quantile of its depths overshot by 20 cm on a 100-frame
+        # human. The output corrects it on the points near it (output_tree, root_depth)
         c_tilde = _boundary_centroids(ctx, labels, parent, view_camera)
         joints = solve_joint_positions(R, T, parent, c_tilde, cfg.eta)
     joints = joints.copy()
@@ -1338,7 +1339,7 @@ def root_axis_joint(rest_points: np.ndarray, joint: np.ndarray,
     ``joint`` (the visible root part's centre, or its end) to the depth of the body's axis
     there: the single-view correction of :func:`pointrig.view.view_depth_correct` on the rest
     points within ``ball`` times the rest points' bounding-box diagonal of ``joint``, as
-    :func:`centre_root_joint` does for a centre it finds itself. Only the depth changes;
+    :func:`centre_root_joint` does for the body's centre. Only the depth changes;
     ``joint`` is returned unchanged without ``view_camera``."""
     near = _ball_points(rest_points, joint, ball)
     return _axis_depth(near, np.asarray(joint, dtype=float), view_camera, view_quantile,
