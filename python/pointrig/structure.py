@@ -1358,8 +1358,9 @@ def _ball_points(rest_points: np.ndarray, centre: np.ndarray, ball: float) -> np
 def _axis_depth(near: np.ndarray, c: np.ndarray, view_camera: np.ndarray | None,
                 view_quantile: float, view_method: str) -> np.ndarray:
     """``c (3,)`` moved back to the axis depth of the points ``near (n, 3)``, or a copy of it
-    without a camera (metres)."""
-    if view_camera is None or view_quantile <= 0:
+    without a camera (metres; ``view_depth_correct`` itself returns a copy for a quantile of
+    0)."""
+    if view_camera is None:
         return np.array(c, dtype=float)
     return view_depth_correct(near, None, c, view_camera, view_quantile, view_method)
 
