@@ -163,3 +163,30 @@ def test_refinement_is_on_by_default_and_off_reuses_the_checkpoint(demo_run, tmp
     rep = evaluate_files(out / "skeleton.json", demo_path() / "gt.npz")
     assert rep.recall >= 0.8, rep.format_table()
     assert rep.normalized_error <= 0.04, rep.format_table()
+
+
+def test_max_joints_caps_the_skeleton_and_is_recorded(demo_run, tmp_path, capsys):
+    """``--max-joints N`` (``[structure] max_joints``, docs/structure.md "Session 39"): at most
+    N joints, the cap recorded in skeleton.json, the demo's joints still found and fewer
+    extra ones than the uncapped run (ground truth as the oracle); a bad value is one error
+    line before any step, with nothing written."""
+    out = tmp_path / "capped"
+    out.mkdir()
+    shutil.copy(demo_run / "registration.npz", out / "registration.npz")
+    code = main(["extract", str(demo_path() / "frames"), "-o", str(out), "-q",
+                 "--no-pictures", "--max-joints", "11"])
+    assert code == 0
+    doc = json.loads((out / "skeleton.json").read_text())
+    assert doc["params"]["structure"]["max_joints"] == 11
+    assert len(doc["joints"]) <= 11
+    free = evaluate_files(demo_run / "skeleton.json", demo_path() / "gt.npz")
+    rep = evaluate_files(out / "skeleton.json", demo_path() / "gt.npz")
+    assert rep.recall >= 0.7, rep.format_table()
+    assert rep.precision >= free.precision, (rep.format_table(), free.format_table())
+    capsys.readouterr()
+    bad = tmp_path / "bad"
+    assert main(["extract", str(demo_path() / "frames"), "-o", str(bad), "--max-joints",
+                 "-2"]) == 1
+    err = capsys.readouterr().err
+    assert "[structure] max_joints must be an integer >= 0" in err
+    assert len(err.strip().splitlines()) == 1 and not bad.exists()

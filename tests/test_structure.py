@@ -597,3 +597,47 @@ def test_structure_from_labels_rejects_bad_labels_and_trees():
     for parent in ([-1, -1, 0], [1, 2, 0], [-1, 0], [-1, 0, 3]):
         with pytest.raises(InputError):
             structure_from_labels(Q, Y, labels, None, np.array(parent))
+
+
+def _wobbling_arm(n_frames: int = 30):
+    """The 4-part arm whose every part is cut lengthwise in two, one half turning up to 14 deg
+    against the other about its own centre (how a registration that slides around a limb
+    looks to step 2): more bones than parts by the motion tests, 4 by the truth."""
+    d = make_sequence("arm", n_points=1200, n_frames=n_frames, seed=3)
+    fig, rest, labels, pts = d["figure"], d["rest"], d["labels"], d["points"].copy()
+    t = np.arange(n_frames) / (n_frames - 1)
+    for p in range(len(fig.names)):
+        ax = fig.b[p] - fig.a[p]
+        ax /= np.linalg.norm(ax)
+        side = np.cross(ax, (0.0, 0.0, 1.0) if abs(ax[2]) < 0.9 else (1.0, 0.0, 0.0))
+        sel = np.flatnonzero((labels == p) & ((rest - fig.a[p]) @ side > 0))
+        c = rest[sel].mean(0)
+        for f in range(n_frames):
+            Rw = Rotation.from_rotvec(np.radians(14.0) * np.sin(2 * np.pi * 1.5 * t[f])
+                                      * ax).as_matrix()
+            cf = d["R"][f, p] @ c + d["T"][f, p]  # the half's centre in frame f
+            pts[f, sel] = (pts[f, sel] - cf) @ (d["R"][f, p] @ Rw @ d["R"][f, p].T).T + cf
+    return d, pts
+
+
+def test_max_joints_cap_removes_the_least_visible_bones_first():
+    from structure_helpers import topology_matches
+
+    d, pts = _wobbling_arm()
+    free = extract_structure(d["rest"], pts, StructureConfig(n_clusters=20, ensemble_seeds=1))
+    assert free.n_bones > 4  # the halves move apart: the motion tests alone keep them
+    capped = extract_structure(d["rest"], pts, StructureConfig(n_clusters=20,
+                                                                ensemble_seeds=1, max_joints=4))
+    assert capped.n_bones == 4
+    assert topology_matches(capped.labels, capped.bone_parent, d["labels"], d["figure"])
+    assert len(capped.diagnostics["capped_bones_removed"]) >= 1
+    # a cap above the free count changes nothing
+    loose = extract_structure(d["rest"], pts, StructureConfig(
+        n_clusters=20, ensemble_seeds=1, max_joints=free.n_bones))
+    np.testing.assert_array_equal(loose.labels, free.labels)
+
+
+@pytest.mark.parametrize("value", [-1, 2.5, True, "3"])
+def test_bad_max_joints_raise(value):
+    with pytest.raises(ConfigError, match="max_joints"):
+        StructureConfig(max_joints=value)

@@ -115,7 +115,11 @@ def _config_from_args(args: argparse.Namespace):
         "frame_stop": args.stop, "frame_stride": None if args.stride == 1 else args.stride,
     }
     pre = dataclasses.replace(cfg.preprocess, **{k: v for k, v in given.items() if v is not None})
-    return dataclasses.replace(cfg, preprocess=pre)
+    cfg = dataclasses.replace(cfg, preprocess=pre)
+    if getattr(args, "max_joints", None) is not None:  # extract only; checked by the config
+        cfg = dataclasses.replace(cfg, structure=dataclasses.replace(
+            cfg.structure, max_joints=args.max_joints))
+    return cfg
 
 
 def _read_configured(args: argparse.Namespace, cfg):
@@ -289,6 +293,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--stop-after", choices=["registration", "structure", "joints"],
                    default="joints", help="stop after this step (structure: score step 2 alone)")
     p.add_argument("--no-pictures", action="store_true", help="skip skeleton.png/.gif")
+    p.add_argument("--max-joints", type=int, default=None, metavar="N",
+                   help="at most N joints, when you know the subject (an arm: 3, shoulder, "
+                        "elbow, wrist); overrides [structure] max_joints (default 0: as many "
+                        "as the motion shows)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=cmd_extract)
 

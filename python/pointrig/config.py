@@ -331,6 +331,12 @@ class StructureConfig:
     # points). 0 = off
     invisible_bone_fraction: float = 0.005
     refine_passes: int = 25  # maximum rounds of merge / prune / rebuild (one pruning each)
+    # at most this many bones, i.e. output joints (joint j is the head of bone j); 0 = no cap,
+    # the count follows from the tests above. When the user knows the subject (an arm: 3,
+    # shoulder, elbow, wrist), the refinement goes on removing the bone whose removal adds the
+    # least misfit in all (its points x the invisible-bone test's cost squared, no threshold)
+    # until the cap holds (docs/structure.md "Session 39")
+    max_joints: int = 0
 
     # --- initial joints (Eq. 20) ---
     eta: float = 1.0  # boundary-centroid data weight in E_Joint (Eq. 20), Table 1
@@ -376,6 +382,10 @@ class StructureConfig:
             "edge_weight": ("dislocation", "eq15"),
             "view_depth_method": ("width", "quantile"),
             "single_view": ("yes", "no", "auto")})
+        if not (isinstance(self.max_joints, int) and not isinstance(self.max_joints, bool)
+                and self.max_joints >= 0):
+            raise ConfigError("[structure] max_joints must be an integer >= 0 (0 = no cap), "
+                              f"got {self.max_joints!r}")
 
 
 @dataclass(frozen=True)

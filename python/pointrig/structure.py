@@ -817,7 +817,11 @@ def _prune(ctx: _Ctx, labels: np.ndarray, parent: np.ndarray, joints: np.ndarray
       each of its points goes to the parent or a child, whichever fits best (Eq. 14 residual);
     * invisible bone: a non-root bone whose :func:`removal_cost` against its tree neighbours
       is below ``invisible_bone_fraction`` times the size -> each point goes to the better
-      neighbour (smallest cost first).
+      neighbour (smallest cost first);
+    * over the cap: while there are more than ``max_joints > 0`` bones, the bone whose
+      removal adds the least misfit in all (its points times the square of its
+      :func:`removal_cost`; the root included, against its children) goes the same way,
+      whatever its cost.
     """
     cfg = ctx.cfg
     B = len(parent)
@@ -874,22 +878,32 @@ def _prune(ctx: _Ctx, labels: np.ndarray, parent: np.ndarray, joints: np.ndarray
         new[labels == b] = to
         diag.setdefault("short_bones_removed", []).append(round(span, 4))
         return new
-    if cfg.invisible_bone_fraction > 0:
-        best: tuple[float, int, np.ndarray] | None = None
+    # over the cap (max_joints): the bone whose removal adds the least misfit in all goes,
+    # whatever its cost, the root too
+    over = 0 < cfg.max_joints < B
+    if cfg.invisible_bone_fraction > 0 or over:
+        best: tuple[float, float, int, np.ndarray] | None = None
         for b in range(B):
-            if parent[b] < 0:
+            others = ([int(parent[b])] if parent[b] >= 0 else []) + [int(c)
+                                                                     for c in children[b]]
+            if (parent[b] < 0 and not over) or not others:
                 continue
-            cost, to = removal_cost(ctx.Q, ctx.Y, R, T, labels, b,
-                                    [int(parent[b])] + [int(c) for c in children[b]])
-            if cost < cfg.invisible_bone_fraction * ctx.size and (best is None or
-                                                                   cost < best[0]):
-                best = (cost, b, to)
+            cost, to = removal_cost(ctx.Q, ctx.Y, R, T, labels, b, others)
+            if over:
+                key = float(counts[b]) * cost ** 2  # the bone's extra squared misfit, summed
+            elif cost < cfg.invisible_bone_fraction * ctx.size:
+                key = cost
+            else:
+                continue
+            if best is None or key < best[0]:
+                best = (key, cost, b, to)
         if best is not None:
-            cost, b, to = best
+            _key, cost, b, to = best
             new = labels.copy()
             new[labels == b] = to
-            diag.setdefault("invisible_bones_removed", []).append(
-                round(cost / ctx.size, 5))
+            key = ("invisible_bones_removed" if cost < cfg.invisible_bone_fraction * ctx.size
+                   else "capped_bones_removed")
+            diag.setdefault(key, []).append(round(cost / ctx.size, 5))
             return new
     return None
 
@@ -1066,7 +1080,9 @@ def _extract_once(ctx: _Ctx, features: np.ndarray, seed: int,
 
     tree_pairs: list[tuple[int, int]] = []
     passes = 0
-    for passes in range(1, cfg.refine_passes + 1):
+    # a cap on the bones (max_joints) may need one pass per bone removed beyond the usual ones
+    max_passes = cfg.refine_passes + (k if cfg.max_joints > 0 else 0)
+    for passes in range(1, max_passes + 1):
         for _batch in range(ctx.M):
             labels, merged = _merge_batch(ctx, labels, tree_pairs, diag)
             tree_pairs = []
