@@ -95,8 +95,21 @@ VALIDATION: dict[str, tuple[str, dict]] = {
                                {"seed": 20, "clip": "3_attack", "yaw": -30}),
 }
 
+#: Single limbs (session 39): the bare arm and the robot arm, which the suite lacks. Their
+#: registrations slide round the limb, so step 2 cuts it lengthwise into many bones (the arm:
+#: 26-27 joints for 3); the set measures that over-segmentation and ``[structure]
+#: max_joints`` (``bench_suite.py --set limbs '{}' '{"max_joints_from": "skinned"}'``).
+LIMBS: dict[str, tuple[str, dict]] = {
+    "arm_s3": ("arm", {"seed": 3}),
+    "arm_s31": ("arm", {"seed": 31}),
+    "arm_s32": ("arm", {"seed": 32}),
+    "robot_arm_s3": ("robot_arm", {"seed": 3}),
+    "robot_arm_s33": ("robot_arm", {"seed": 33}),
+}
+
 #: The sequence sets by name (``--set`` of ``bench_suite.py``).
-SETS: dict[str, dict[str, tuple[str, dict]]] = {"suite": SEQUENCES, "validation": VALIDATION}
+SETS: dict[str, dict[str, tuple[str, dict]]] = {"suite": SEQUENCES, "validation": VALIDATION,
+                                                "limbs": LIMBS}
 
 
 def _synth(source: str, kw: dict, frames: int):
@@ -109,7 +122,8 @@ def _synth(source: str, kw: dict, frames: int):
 def add_set_option(ap: argparse.ArgumentParser) -> None:
     """Add ``--set`` (a key of :data:`SETS`, default ``"suite"``) to a benchmark's parser."""
     ap.add_argument("--set", default="suite", choices=sorted(SETS),
-                    help="the sequences: the suite (default) or the held-back validation set")
+                    help="the sequences: the suite (default), the held-back validation set or "
+                         "the single limbs")
 
 
 def selected(ap: argparse.ArgumentParser, only_arg: str,

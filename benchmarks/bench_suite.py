@@ -17,14 +17,22 @@ joint) and the recall of the procedural figures and of the glTF rigs::
 
 ``--set validation`` runs :data:`bench_refine.VALIDATION` instead: 16 sequences of the same
 figures and rigs with seeds, views and clips no change was tuned on (choose a variant on the
-suite, then check it there).
+suite, then check it there). ``--set limbs`` runs :data:`bench_refine.LIMBS`: the bare arm
+and the robot arm, five sequences the suite lacks.
 
 ``--json FILE`` also writes every run's report.
+
+A variant may carry the bench-only key ``"max_joints_from": "skinned"``: each sequence then runs
+with ``[structure] max_joints`` set to its rig's number of skinned joints (what a user who knows
+the subject would give, docs/structure.md "Session 39")::
+
+    PYTHONPATH=python python benchmarks/bench_suite.py '{}' '{"max_joints_from": "skinned"}'
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -57,9 +65,15 @@ def main(argv: list[str]) -> int:
     procedural = {n for n, (src, _) in sequences.items() if not src.endswith(".glb")}
     try:
         overs = [json.loads(v) for v in a.variants]
+        caps = [o.pop("max_joints_from", None) for o in overs]
+        if set(caps) - {None, "skinned"}:
+            raise ValueError("max_joints_from must be \"skinned\"")
         cfgs = [apply_overrides(o, where=f"variant {v}") for v, o in enumerate(overs)]
     except (ValueError, AttributeError) as exc:  # bad JSON, a ConfigError, not a mapping
         ap.error(f"bad variant: {exc}")
+    for o, c in zip(overs, caps):  # kept in the JSON record of the variants
+        if c is not None:
+            o["max_joints_from"] = c
     # every run's report (errors in metres) and seconds, keyed "variant/repeat/name"
     reports: dict[str, dict] = {}
     print(f"{'sequence':<24}" + "".join(f"{'variant ' + str(v):>34}" for v in range(len(cfgs))))
@@ -67,6 +81,9 @@ def main(argv: list[str]) -> int:
         seq0 = syn.to_point_sequence()
         cells = []
         for v, cfg in enumerate(cfgs):
+            if caps[v] == "skinned":
+                cfg = dataclasses.replace(cfg, structure=dataclasses.replace(
+                    cfg.structure, max_joints=int(np.sum(syn.skinned))))
             rows = []  # per repeat: recall, precision, raw cm, normalised cm, seconds
             for k in range(a.repeats):
                 seq = seq0 if k == 0 else _jittered(seq0, k)

@@ -27,14 +27,15 @@ def test_validation_set_is_disjoint_from_the_suite() -> None:
     assert not set(suite) & set(val)
     assert not {_key(*v) for v in suite.values()} & {_key(*v) for v in val.values()}
     assert not {kw["seed"] for _, kw in suite.values()} & {kw["seed"] for _, kw in val.values()}
-    assert set(bench_refine.SETS) == {"suite", "validation"}
+    assert set(bench_refine.SETS) == {"suite", "validation", "limbs"}
 
 
-@pytest.mark.parametrize("name", sorted(bench_refine.VALIDATION))
+@pytest.mark.parametrize("name", sorted(bench_refine.VALIDATION) + sorted(bench_refine.LIMBS))
 def test_validation_entries_name_a_figure_or_a_rig(name: str) -> None:
-    """Each source is a procedural figure or a .glb under the shared models folder, and the
-    keywords are ones the benchmark's synthesis takes."""
-    source, kw = bench_refine.VALIDATION[name]
+    """Each source (of the validation and the limbs sets) is a procedural figure or a .glb
+    under the shared models folder, and the keywords are ones the benchmark's synthesis
+    takes."""
+    source, kw = {**bench_refine.VALIDATION, **bench_refine.LIMBS}[name]
     if source.endswith(".glb"):
         assert Path(source).parent == bench_refine._MODELS
     else:
