@@ -901,9 +901,9 @@ def _prune(ctx: _Ctx, labels: np.ndarray, parent: np.ndarray, joints: np.ndarray
             _key, cost, b, to = best
             new = labels.copy()
             new[labels == b] = to
-            key = ("invisible_bones_removed" if cost < cfg.invisible_bone_fraction * ctx.size
-                   else "capped_bones_removed")
-            diag.setdefault(key, []).append(round(cost / ctx.size, 5))
+            what = ("invisible_bones_removed" if cost < cfg.invisible_bone_fraction * ctx.size
+                    else "capped_bones_removed")
+            diag.setdefault(what, []).append(round(cost / ctx.size, 5))
             return new
     return None
 
