@@ -50,6 +50,11 @@ from compare_runs import common_means, run_from_reports  # noqa: E402
 from pointrig.config import apply_overrides  # noqa: E402
 from pointrig.pipeline import extract  # noqa: E402
 
+#: The bench-only variant key (not a config key) that caps each sequence's joints at its rig's
+#: skinned joint count (see the module docstring).
+_CAP_KEY = "max_joints_from"
+
+
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("variants", nargs="*", default=["{}"], help="JSON overrides per variant")
@@ -65,10 +70,10 @@ def main(argv: list[str]) -> int:
     procedural = {n for n, (src, _) in sequences.items() if not src.endswith(".glb")}
     try:
         overs = [json.loads(v) for v in a.variants]
-        caps = [o.get("max_joints_from") for o in overs]  # bench-only, not a config key
+        caps = [o.get(_CAP_KEY) for o in overs]
         if set(caps) - {None, "skinned"}:
-            raise ValueError("max_joints_from must be \"skinned\"")
-        cfgs = [apply_overrides({k: x for k, x in o.items() if k != "max_joints_from"},
+            raise ValueError(f"{_CAP_KEY} must be \"skinned\"")
+        cfgs = [apply_overrides({k: x for k, x in o.items() if k != _CAP_KEY},
                                 where=f"variant {v}") for v, o in enumerate(overs)]
     except (ValueError, AttributeError) as exc:  # bad JSON, a ConfigError, not a mapping
         ap.error(f"bad variant: {exc}")

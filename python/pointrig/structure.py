@@ -881,6 +881,7 @@ def _prune(ctx: _Ctx, labels: np.ndarray, parent: np.ndarray, joints: np.ndarray
     # over the cap (max_joints): the bone whose removal adds the least misfit in all goes,
     # whatever its cost, the root too
     over = 0 < cfg.max_joints < B
+    invisible = cfg.invisible_bone_fraction * ctx.size  # RMS cost below which a bone goes
     if cfg.invisible_bone_fraction > 0 or over:
         best: tuple[float, float, int, np.ndarray] | None = None
         for b in range(B):
@@ -891,7 +892,7 @@ def _prune(ctx: _Ctx, labels: np.ndarray, parent: np.ndarray, joints: np.ndarray
             cost, to = removal_cost(ctx.Q, ctx.Y, R, T, labels, b, others)
             if over:
                 key = float(counts[b]) * cost ** 2  # the bone's extra squared misfit, summed
-            elif cost < cfg.invisible_bone_fraction * ctx.size:
+            elif cost < invisible:
                 key = cost
             else:
                 continue
@@ -901,8 +902,7 @@ def _prune(ctx: _Ctx, labels: np.ndarray, parent: np.ndarray, joints: np.ndarray
             _key, cost, b, to = best
             new = labels.copy()
             new[labels == b] = to
-            what = ("invisible_bones_removed" if cost < cfg.invisible_bone_fraction * ctx.size
-                    else "capped_bones_removed")
+            what = "invisible_bones_removed" if cost < invisible else "capped_bones_removed"
             diag.setdefault(what, []).append(round(cost / ctx.size, 5))
             return new
     return None
