@@ -109,6 +109,96 @@ def test_depth_png_back_projection(tmp_path):
     np.testing.assert_allclose(depth_to_points(depth, intr), want)
 
 
+def _open3d_recording(root: Path, rng: np.random.Generator, n_frames: int = 2):
+    """An Open3D-recorder layout: ``root/depth/000000.png ...`` (16-bit, mm) and
+    ``root/intrinsic.json`` written by Open3D itself. Returns the depth images and the
+    intrinsic."""
+    import open3d as o3d
+
+    (root / "depth").mkdir(parents=True)
+    intr = o3d.camera.PinholeCameraIntrinsic(32, 24, 41.0, 37.0, 15.3, 11.8)
+    o3d.io.write_pinhole_camera_intrinsic(str(root / "intrinsic.json"), intr)
+    depths = []
+    for t in range(n_frames):
+        d = rng.integers(400, 4000, size=(24, 32)).astype(np.uint16)
+        d[rng.random(d.shape) < 0.3] = 0  # invalid pixels
+        o3d.io.write_image(str(root / "depth" / f"{t:06d}.png"), o3d.geometry.Image(d))
+        depths.append(d)
+    return depths, intr
+
+
+def _sorted_rows(a: np.ndarray) -> np.ndarray:
+    return a[np.lexsort(a.T[::-1])]
+
+
+def test_depth_png_open3d_recorder_layout(tmp_path, rng):
+    """A folder of depth PNGs with Open3D's ``intrinsic.json`` in the parent (its RealSense /
+    Azure Kinect recorders' layout) reads without options and back-projects as Open3D does."""
+    import open3d as o3d
+
+    depths, intr = _open3d_recording(tmp_path / "rec", rng)
+    seq = read_sequence(tmp_path / "rec" / "depth")
+    assert seq.fmt == "depth-png" and len(seq) == 2
+    for got, d in zip(seq.frames, depths):
+        pcd = o3d.geometry.PointCloud.create_from_depth_image(
+            o3d.geometry.Image(d), intr, depth_scale=1000.0, depth_trunc=100.0)
+        want = np.asarray(pcd.points)
+        assert got.shape == want.shape == ((d > 0).sum(), 3)
+        np.testing.assert_allclose(_sorted_rows(got), _sorted_rows(want), atol=1e-6)
+
+
+def test_intrinsics_open3d_matrix_and_lookup_order(tmp_path):
+    """Open3D's column-major ``intrinsic_matrix`` gives fx, fy, cx, cy and the image size; our
+    own file in the folder wins over Open3D's in the parent."""
+    from pointrig.io.readers import find_intrinsics, read_intrinsics
+
+    doc = {"width": 640, "height": 480,
+           "intrinsic_matrix": [525.0, 0.0, 0.0, 0.0, 520.0, 0.0, 319.5, 239.5, 1.0]}
+    (tmp_path / "intrinsic.json").write_text(json.dumps(doc))
+    got = read_intrinsics(tmp_path / "intrinsic.json")
+    assert got == {"fx": 525.0, "fy": 520.0, "cx": 319.5, "cy": 239.5, "depth_scale": 0.001,
+                   "width": 640.0, "height": 480.0}
+    sub = tmp_path / "depth"
+    sub.mkdir()
+    assert find_intrinsics(sub) == tmp_path / "intrinsic.json"
+    (sub / "intrinsics.json").write_text(json.dumps({"fx": 1, "fy": 1, "cx": 0, "cy": 0}))
+    assert find_intrinsics(sub) == sub / "intrinsics.json"
+
+
+@pytest.mark.parametrize("doc, match", [
+    ({"intrinsic_matrix": [525.0, 0.0, 0.0, 0.0, 520.0, 0.0, 319.5, 239.5]}, "9 finite"),
+    ({"intrinsic_matrix": [525.0, 3.0, 0.0, 0.0, 520.0, 0.0, 319.5, 239.5, 1.0]}, "pinhole"),
+    ({"intrinsic_matrix": [[525.0, 0.0, 319.5], [0.0, 520.0, 239.5], [0, 0]]}, "9 finite"),
+    ({"intrinsic_matrix": [[525.0, 0.0, 319.5], [0.0, 520.0, 239.5], [0, 0, 1]]}, "9 finite"),
+    ({"fx": 500, "fy": 500, "cx": 1, "cy": 1, "width": 0, "height": 4}, "whole numbers"),
+    ({"fx": 500, "fy": "x", "cx": 1, "cy": 1}, "numbers"),
+    ({"fx": 500, "fy": 500, "cx": 1}, "'cy'"),
+    ([1, 2, 3], "JSON object"),
+])
+def test_bad_intrinsics(tmp_path, doc, match):
+    from PIL import Image
+
+    (tmp_path / "intrinsics.json").write_text(json.dumps(doc))
+    for t in range(2):
+        Image.fromarray(np.ones((4, 6), dtype=np.uint16)).save(tmp_path / f"d{t}.png")
+    with pytest.raises(InputError, match=match) as err:
+        read_sequence(tmp_path)
+    assert str(err.value).count("intrinsics.json") == 1  # named once, not nested
+
+
+def test_depth_png_size_differs_from_intrinsics(tmp_path):
+    """Intrinsics for another resolution are refused, naming the frame file."""
+    from PIL import Image
+
+    doc = {"fx": 500, "fy": 500, "cx": 3, "cy": 2, "width": 640, "height": 480}
+    (tmp_path / "intrinsics.json").write_text(json.dumps(doc))
+    for t in range(2):
+        Image.fromarray(np.ones((4, 6), dtype=np.uint16)).save(tmp_path / f"d{t}.png")
+    with pytest.raises(InputError, match="6 x 4 pixels .* 640 x 480") as err:
+        read_sequence(tmp_path)
+    assert "d0.png" in str(err.value)
+
+
 def test_frame_range_crop_voxel_scale(tmp_path, rng):
     frames = [rng.uniform(-1000, 1000, size=(500, 3)) for _ in range(6)]
     write_sequence(tmp_path, frames, fmt="npy")

@@ -44,7 +44,10 @@ def _add_input_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--voxel", type=float, default=0.0, help="voxel downsampling size, metres")
     p.add_argument("--scale", type=float, default=1.0,
                    help="multiply coordinates to get metres (0.001 for millimetres)")
-    p.add_argument("--intrinsics", default=None, help="camera intrinsics JSON for depth PNGs")
+    p.add_argument("--intrinsics", default=None,
+                   help="camera intrinsics JSON for depth PNGs: fx, fy, cx, cy[, depth_scale] or "
+                   "Open3D's intrinsic_matrix (default: intrinsics.json, intrinsic.json or "
+                   "camera_intrinsic.json in the folder or its parent)")
 
 
 def _read_input(args: argparse.Namespace):

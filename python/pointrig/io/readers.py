@@ -16,7 +16,7 @@ from ..errors import EmptyFrameError, FormatError, InputError
 from ..sequence import PointSequence
 
 __all__ = ["FRAME_FORMATS", "detect_format", "read_frame", "read_sequence", "natural_key",
-           "read_intrinsics", "depth_to_points"]
+           "read_intrinsics", "find_intrinsics", "INTRINSICS_NAMES", "depth_to_points"]
 
 #: suffix -> format name for per-frame files
 FRAME_FORMATS = {".ply": "ply", ".pcd": "pcd", ".xyz": "xyz", ".txt": "xyz", ".npy": "npy",
@@ -199,10 +199,38 @@ def _read_npy(path: Path) -> np.ndarray:
     return arr.astype(np.float64)
 
 
-def read_intrinsics(path: str | Path) -> dict[str, float]:
-    """Read a camera intrinsics JSON with ``fx, fy, cx, cy`` (pixels) and ``depth_scale``.
+#: file names searched for the intrinsics of a depth-PNG folder, in this order, in the folder
+#: and then in its parent: ours, then what Open3D's RealSense and Azure Kinect recorders write
+#: beside their ``depth/`` folder (``intrinsic.json``) and what its reconstruction system reads
+INTRINSICS_NAMES = ("intrinsics.json", "intrinsic.json", "camera_intrinsic.json")
 
-    ``depth_scale`` is metres per depth unit (default 0.001: depth PNGs in millimetres).
+
+def read_intrinsics(path: str | Path) -> dict[str, float]:
+    """Read a pinhole camera intrinsics JSON.
+
+    Two layouts are accepted:
+
+    - pointrig's: ``fx, fy, cx, cy`` (pixels), optional ``depth_scale`` (metres per depth
+      unit) and optional ``width, height`` (pixels);
+    - Open3D's ``PinholeCameraIntrinsic`` (``o3d.io.write_pinhole_camera_intrinsic``, and the
+      ``intrinsic.json`` of its RealSense and Azure Kinect recorders): ``width, height`` and
+      ``intrinsic_matrix``, the 3 x 3 matrix ``K`` as 9 numbers in column-major order
+      (``[fx, 0, 0, 0, fy, 0, cx, cy, 1]``), optional ``depth_scale``.
+
+    ``depth_scale`` defaults to 0.001 (depth PNGs in millimetres, as both recorders write).
+
+    Returns
+    -------
+    dict
+        ``fx, fy, cx, cy`` (pixels), ``depth_scale`` (metres per unit) and, when the file gives
+        the image size, ``width, height`` (pixels), all as floats.
+
+    Raises
+    ------
+    InputError
+        Missing file or key, a malformed matrix, non-positive focal lengths, size or scale.
+    FormatError
+        Not JSON, or not a JSON object.
     """
     p = Path(path)
     try:
@@ -211,15 +239,65 @@ def read_intrinsics(path: str | Path) -> dict[str, float]:
         raise InputError("intrinsics file not found", p) from None
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise FormatError(f"intrinsics is not valid JSON: {exc}", p) from None
-    out = {}
-    for key in ("fx", "fy", "cx", "cy"):
-        if key not in doc:
-            raise InputError(f"intrinsics lacks {key!r}", p)
-        out[key] = float(doc[key])
-    out["depth_scale"] = float(doc.get("depth_scale", 0.001))
+    if not isinstance(doc, dict):
+        raise FormatError("intrinsics must be a JSON object", p)
+    out: dict[str, float] = {}
+    try:
+        if "intrinsic_matrix" in doc and "fx" not in doc:
+            try:
+                k = np.asarray(doc["intrinsic_matrix"], dtype=np.float64)
+            except (TypeError, ValueError):
+                k = np.zeros(0)
+            if k.shape != (9,) or not np.isfinite(k).all():
+                raise InputError("intrinsic_matrix must be 9 finite numbers (3 x 3, column-major "
+                                 "as Open3D writes it)", p)
+            kk = k.reshape(3, 3).T  # column-major -> K[row, col]
+            if abs(kk[0, 1]) > 1e-9 or abs(kk[1, 0]) > 1e-9 or np.abs(kk[2] - (0, 0, 1)).max() \
+                    > 1e-9:
+                raise InputError("intrinsic_matrix is not a pinhole K = [[fx, 0, cx], "
+                                 "[0, fy, cy], [0, 0, 1]] in column-major order", p)
+            out.update(fx=kk[0, 0], fy=kk[1, 1], cx=kk[0, 2], cy=kk[1, 2])
+        else:
+            for key in ("fx", "fy", "cx", "cy"):
+                if key not in doc:
+                    raise InputError(f"intrinsics lacks {key!r} (or an Open3D "
+                                     "'intrinsic_matrix')", p)
+                out[key] = float(doc[key])
+        out["depth_scale"] = float(doc.get("depth_scale", 0.001))
+        for key in ("width", "height"):
+            if key in doc:
+                out[key] = float(doc[key])
+    except InputError:
+        raise
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"intrinsics values must be numbers: {exc}", p) from None
+    if not all(np.isfinite(v) for v in out.values()):
+        raise InputError("intrinsics values must be finite", p)
     if out["fx"] <= 0 or out["fy"] <= 0 or out["depth_scale"] <= 0:
         raise InputError("fx, fy and depth_scale must be positive", p)
+    if any(key in out and (out[key] < 1 or out[key] != int(out[key]))
+           for key in ("width", "height")):
+        raise InputError("width and height must be positive whole numbers of pixels", p)
     return out
+
+
+def find_intrinsics(folder: str | Path) -> Path:
+    """The intrinsics file of a depth-PNG folder: the first of :data:`INTRINSICS_NAMES` in
+    ``folder``, then in its parent (Open3D's recorders put ``intrinsic.json`` beside
+    ``depth/``).
+
+    Raises
+    ------
+    InputError
+        None of them exists; the message names every place looked at.
+    """
+    p = Path(folder)
+    for d in (p, p.parent):
+        for name in INTRINSICS_NAMES:
+            if (d / name).is_file():
+                return d / name
+    raise InputError(f"depth PNGs need camera intrinsics: none of {', '.join(INTRINSICS_NAMES)} "
+                     "in this folder or its parent; pass --intrinsics FILE", p)
 
 
 def depth_to_points(depth: np.ndarray, intr: dict[str, float]) -> np.ndarray:
@@ -246,6 +324,9 @@ def _read_depth_png(path: Path, intr: dict[str, float]) -> np.ndarray:
         raise InputError(f"depth PNG must be single-channel, got shape {depth.shape}", path)
     if depth.dtype not in (np.uint16, np.int32, np.uint32, np.int16):
         raise InputError(f"depth PNG must be 16-bit, got {depth.dtype}", path)
+    if "width" in intr and depth.shape != (int(intr["height"]), int(intr["width"])):
+        raise InputError(f"depth PNG is {depth.shape[1]} x {depth.shape[0]} pixels but the "
+                         f"intrinsics are for {int(intr['width'])} x {int(intr['height'])}", path)
     return depth_to_points(depth, intr)
 
 
@@ -359,7 +440,8 @@ def read_sequence(
     ----------
     path
         A directory of per-frame files (PLY, PCD, XYZ/TXT, NPY, or 16-bit depth PNG with an
-        ``intrinsics.json`` beside them), or one ``.npz`` with all frames.
+        intrinsics JSON beside them or in the parent folder, :func:`find_intrinsics`), or one
+        ``.npz`` with all frames.
     start, stop, stride
         Frame range, Python slice semantics over the naturally sorted frames.
     crop_min, crop_max
@@ -367,8 +449,8 @@ def read_sequence(
     voxel_size
         Voxel downsampling size in metres (0 = off).
     intrinsics
-        For depth PNGs: a path to the intrinsics JSON or the dict; default
-        ``path/intrinsics.json``.
+        For depth PNGs: a path to the intrinsics JSON (either layout of
+        :func:`read_intrinsics`) or the dict; default :func:`find_intrinsics` of ``path``.
     scale
         Multiplier that converts the file's units to metres (e.g. 0.001 for millimetres).
     min_points
@@ -401,7 +483,7 @@ def read_sequence(
                 intr = intrinsics
             else:
                 intr = read_intrinsics(intrinsics if intrinsics is not None
-                                       else p / "intrinsics.json")
+                                       else find_intrinsics(p))
         frames = [read_frame(f, intr) for f in files]
         names = [f.name for f in files]
     if len(frames) < min_frames:
