@@ -30,17 +30,18 @@ if [ ! -x .venv/bin/python ]; then
   "$PY" -m venv .venv
 fi
 stamp=.venv/.pointrig-deps
-want=$(sha256sum pyproject.toml | cut -c1-16)
+# constraints.txt pins every package to the versions the tests and benchmarks were run with
+want=$(cat pyproject.toml constraints.txt | sha256sum | cut -c1-16)
 if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
   .venv/bin/python -m pip install -q --upgrade pip
-  .venv/bin/python -m pip install -q "maturin>=1.9.4,<2"
+  .venv/bin/python -m pip install -q -c constraints.txt "maturin>=1.9.4,<2"
   # dependencies from pyproject (runtime + dev); the package itself is built below
   .venv/bin/python - <<'PYEOF' > .venv/.reqs
 import tomllib
 d = tomllib.load(open("pyproject.toml", "rb"))["project"]
 print("\n".join(d["dependencies"] + d["optional-dependencies"]["dev"]))
 PYEOF
-  .venv/bin/python -m pip install -q -r .venv/.reqs
+  .venv/bin/python -m pip install -q -c constraints.txt -r .venv/.reqs
   echo "$want" > "$stamp"
 fi
 VIRTUAL_ENV="$PWD/.venv" PATH="$PWD/.venv/bin:$PATH" .venv/bin/maturin develop --release -q
