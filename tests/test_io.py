@@ -173,6 +173,7 @@ def test_intrinsics_open3d_matrix_and_lookup_order(tmp_path):
     ({"fx": 500, "fy": 500, "cx": 1, "cy": 1, "width": 0, "height": 4}, "whole numbers"),
     ({"fx": 500, "fy": "x", "cx": 1, "cy": 1}, "numbers"),
     ({"fx": 500, "fy": 500, "cx": 1}, "'cy'"),
+    ({"fx": 500, "fy": 500, "cx": 1, "cy": 1, "width": 6}, "both or neither"),
     ([1, 2, 3], "JSON object"),
 ])
 def test_bad_intrinsics(tmp_path, doc, match):

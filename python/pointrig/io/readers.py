@@ -241,34 +241,20 @@ def read_intrinsics(path: str | Path) -> dict[str, float]:
         raise FormatError(f"intrinsics is not valid JSON: {exc}", p) from None
     if not isinstance(doc, dict):
         raise FormatError("intrinsics must be a JSON object", p)
-    out: dict[str, float] = {}
+    if "intrinsic_matrix" in doc and "fx" not in doc:
+        out = _open3d_pinhole(doc["intrinsic_matrix"], p)
+    else:
+        missing = [key for key in ("fx", "fy", "cx", "cy") if key not in doc]
+        if missing:
+            raise InputError(f"intrinsics lacks {missing[0]!r} (or an Open3D "
+                             "'intrinsic_matrix')", p)
+        out = {key: doc[key] for key in ("fx", "fy", "cx", "cy")}
+    out["depth_scale"] = doc.get("depth_scale", 0.001)
+    if ("width" in doc) != ("height" in doc):
+        raise InputError("intrinsics give one of width and height; give both or neither", p)
+    out.update({key: doc[key] for key in ("width", "height") if key in doc})
     try:
-        if "intrinsic_matrix" in doc and "fx" not in doc:
-            try:
-                k = np.asarray(doc["intrinsic_matrix"], dtype=np.float64)
-            except (TypeError, ValueError):
-                k = np.zeros(0)
-            if k.shape != (9,) or not np.isfinite(k).all():
-                raise InputError("intrinsic_matrix must be 9 finite numbers (3 x 3, column-major "
-                                 "as Open3D writes it)", p)
-            kk = k.reshape(3, 3).T  # column-major -> K[row, col]
-            if abs(kk[0, 1]) > 1e-9 or abs(kk[1, 0]) > 1e-9 or np.abs(kk[2] - (0, 0, 1)).max() \
-                    > 1e-9:
-                raise InputError("intrinsic_matrix is not a pinhole K = [[fx, 0, cx], "
-                                 "[0, fy, cy], [0, 0, 1]] in column-major order", p)
-            out.update(fx=kk[0, 0], fy=kk[1, 1], cx=kk[0, 2], cy=kk[1, 2])
-        else:
-            for key in ("fx", "fy", "cx", "cy"):
-                if key not in doc:
-                    raise InputError(f"intrinsics lacks {key!r} (or an Open3D "
-                                     "'intrinsic_matrix')", p)
-                out[key] = float(doc[key])
-        out["depth_scale"] = float(doc.get("depth_scale", 0.001))
-        for key in ("width", "height"):
-            if key in doc:
-                out[key] = float(doc[key])
-    except InputError:
-        raise
+        out = {key: float(value) for key, value in out.items()}
     except (TypeError, ValueError) as exc:
         raise InputError(f"intrinsics values must be numbers: {exc}", p) from None
     if not all(np.isfinite(v) for v in out.values()):
@@ -279,6 +265,22 @@ def read_intrinsics(path: str | Path) -> dict[str, float]:
            for key in ("width", "height")):
         raise InputError("width and height must be positive whole numbers of pixels", p)
     return out
+
+
+def _open3d_pinhole(matrix: object, path: Path) -> dict[str, float]:
+    """``fx, fy, cx, cy`` of Open3D's ``intrinsic_matrix``: ``K`` as 9 numbers, column-major."""
+    try:
+        k = np.asarray(matrix, dtype=np.float64)
+    except (TypeError, ValueError):
+        k = np.zeros(0)  # ragged or not numbers: the shape test below names the problem
+    if k.shape != (9,) or not np.isfinite(k).all():
+        raise InputError("intrinsic_matrix must be 9 finite numbers (3 x 3, column-major as "
+                         "Open3D writes it)", path)
+    K = k.reshape(3, 3).T  # column-major -> K[row, col]
+    if abs(K[0, 1]) > 1e-9 or abs(K[1, 0]) > 1e-9 or np.abs(K[2] - (0, 0, 1)).max() > 1e-9:
+        raise InputError("intrinsic_matrix is not a pinhole K = [[fx, 0, cx], [0, fy, cy], "
+                         "[0, 0, 1]] in column-major order", path)
+    return {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2]}
 
 
 def find_intrinsics(folder: str | Path) -> Path:
@@ -324,7 +326,8 @@ def _read_depth_png(path: Path, intr: dict[str, float]) -> np.ndarray:
         raise InputError(f"depth PNG must be single-channel, got shape {depth.shape}", path)
     if depth.dtype not in (np.uint16, np.int32, np.uint32, np.int16):
         raise InputError(f"depth PNG must be 16-bit, got {depth.dtype}", path)
-    if "width" in intr and depth.shape != (int(intr["height"]), int(intr["width"])):
+    if "width" in intr and "height" in intr \
+            and depth.shape != (int(intr["height"]), int(intr["width"])):
         raise InputError(f"depth PNG is {depth.shape[1]} x {depth.shape[0]} pixels but the "
                          f"intrinsics are for {int(intr['width'])} x {int(intr['height'])}", path)
     return depth_to_points(depth, intr)
