@@ -18,6 +18,7 @@ condition's, measured in the same run; then the means per condition::
 
     PYTHONPATH=python python benchmarks/bench_capture.py                     # ~25 min
     PYTHONPATH=python python benchmarks/bench_capture.py --conditions 640@30,1280@30 --only human
+    PYTHONPATH=python python benchmarks/bench_capture.py --repeat 1  # the rounding spread
 
 The sequences are names of :data:`bench_refine.SEQUENCES` or :data:`bench_refine.VALIDATION`;
 a sequence's own camera setting (``quadruped_320``) is replaced by the conditions here.
@@ -36,7 +37,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_refine import SETS  # noqa: E402
+from bench_refine import SETS, _jittered  # noqa: E402
 from bench_registration_downstream import score_joints  # noqa: E402
 
 from pointrig.config import PipelineConfig  # noqa: E402
@@ -62,6 +63,9 @@ def main(argv: list[str]) -> int:
                     help="WIDTH@FPS, comma-separated; the first is the reference")
     ap.add_argument("--only", default=DEFAULT_SEQUENCES, help="sequences, comma-separated")
     ap.add_argument("--frames", type=int, default=100, help="frames at 30 fps (default 100)")
+    ap.add_argument("--repeat", type=int, default=0,
+                    help="0: the input as generated; k > 0: moved by at most 1e-9 m (seed k), "
+                         "the rounding spread of bench_suite.py's repeat k")
     args = ap.parse_args(argv)
     try:
         conds = [(int(c.split("@")[0]), float(c.split("@")[1]))
@@ -88,14 +92,16 @@ def main(argv: list[str]) -> int:
             syn = synthesize(source, n_frames=n_frames, camera=camera(w), fps=fps,
                              noise=dataclasses.replace(NoiseConfig(), outliers=0.02), **kw)
             seq = syn.to_point_sequence()
+            if args.repeat > 0:
+                seq = _jittered(seq, args.repeat)
             t0 = time.perf_counter()
             out = extract(seq, PipelineConfig(), None, pictures=False)
             seconds = time.perf_counter() - t0
             ref_time = seconds if ref_time is None else ref_time
             rep = score_joints(out.skeleton.joint_positions, syn)
             npts = int(np.median([len(f) for f in seq.frames]))
-            rows[w, fps].append((rep.recall, rep.precision, rep.raw_error, rep.normalized_error,
-                            seconds))
+            rows[w, fps].append((rep.recall, rep.precision, rep.raw_error,
+                                 rep.normalized_error, seconds))
             cond = f"{w}@{fps:g}"
             print(f"{name:16s} {cond:>9s} {npts:9d} {n_frames:6d} "
                   f"{out.skeleton.joint_positions.shape[1]:6d} "

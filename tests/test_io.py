@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from pointrig.errors import EmptyFrameError, FormatError, InputError
 from pointrig.io import read_frame, read_sequence, write_frame, write_sequence
@@ -145,6 +146,22 @@ def test_depth_png_open3d_recorder_layout(tmp_path, rng):
         want = np.asarray(pcd.points)
         assert got.shape == want.shape == ((d > 0).sum(), 3)
         np.testing.assert_allclose(_sorted_rows(got), _sorted_rows(want), atol=1e-6)
+    # what was used is recorded (skeleton.json's "source", `pointrig info`)
+    used = seq.meta["intrinsics"]
+    assert used["path"] == str(tmp_path / "rec" / "intrinsic.json")
+    assert (used["fx"], used["fy"], used["cx"], used["cy"]) == (41.0, 37.0, 15.3, 11.8)
+    assert (used["width"], used["height"], used["depth_scale"]) == (32.0, 24.0, 0.001)
+    assert seq.subset(0, 1).meta == seq.meta
+
+
+def test_info_names_the_intrinsics_used(tmp_path, rng, capsys):
+    from pointrig.cli import main
+
+    _open3d_recording(tmp_path / "rec", rng)
+    assert main(["info", str(tmp_path / "rec" / "depth")]) == 0
+    out = capsys.readouterr().out
+    assert "camera   fx 41 fy 37 cx 15.3 cy 11.8 px, depth unit 0.001 m" in out
+    assert str(tmp_path / "rec" / "intrinsic.json") in out
 
 
 def test_intrinsics_open3d_matrix_and_lookup_order(tmp_path):
@@ -415,3 +432,41 @@ def test_extract_refuses_millimetres_before_writing(tmp_path, rng, capsys):
     with pytest.raises(InputError, match="millimetres"):
         extract(read_sequence(tmp_path / "mm"), out_dir=out)
     assert not out.exists()
+
+
+def test_extract_on_a_recorder_folder_records_the_intrinsics(tmp_path):
+    """A synthetic sequence written as an Open3D recorder's depth/ folder (16-bit mm PNGs,
+    intrinsic.json beside the folder) runs through `pointrig extract` without options, the
+    back-projected frames match the rendered points, and skeleton.json names the intrinsics."""
+    import open3d as o3d
+    from PIL import Image
+
+    from pointrig.cli import main
+    from pointrig.synth import synthesize
+    from pointrig.synth.camera import Camera
+
+    cam = Camera.kinect(320)
+    syn = synthesize("human", n_frames=4, seed=1, camera=cam)
+    (tmp_path / "rec" / "depth").mkdir(parents=True)
+    o3d.io.write_pinhole_camera_intrinsic(
+        str(tmp_path / "rec" / "intrinsic.json"),
+        o3d.camera.PinholeCameraIntrinsic(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy))
+    for t, pts in enumerate(syn.frames):
+        u = np.rint(cam.fx * pts[:, 0] / pts[:, 2] + cam.cx).astype(int)
+        v = np.rint(cam.fy * pts[:, 1] / pts[:, 2] + cam.cy).astype(int)
+        inside = (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
+        assert inside.mean() > 0.98  # the few others are the sensor model's stray outliers
+        depth = np.zeros((cam.height, cam.width), np.uint16)
+        depth[v[inside], u[inside]] = np.rint(pts[inside, 2] * 1000).astype(np.uint16)
+        Image.fromarray(depth).save(tmp_path / "rec" / "depth" / f"{t:06d}.png")
+    seq = read_sequence(tmp_path / "rec" / "depth")
+    for got, pts in zip(seq.frames, syn.frames):  # the same surface, to the pixel and the mm
+        d, _ = cKDTree(pts).query(got)
+        assert np.percentile(d, 95) < 0.02
+    out = tmp_path / "out"
+    assert main(["extract", str(tmp_path / "rec" / "depth"), "-o", str(out), "--stop-after",
+                 "structure", "--no-pictures", "-q"]) == 0
+    source = json.loads((out / "skeleton.json").read_text())["source"]
+    assert source["format"] == "depth-png"
+    assert source["intrinsics"]["path"] == str(tmp_path / "rec" / "intrinsic.json")
+    assert source["intrinsics"]["fx"] == cam.fx and source["intrinsics"]["width"] == cam.width

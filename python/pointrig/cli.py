@@ -74,6 +74,10 @@ def cmd_info(args: argparse.Namespace) -> int:
     lo = ", ".join(f"{v:.3f}" for v in s["bounds_min"])
     hi = ", ".join(f"{v:.3f}" for v in s["bounds_max"])
     print(f"bounds   [{lo}] .. [{hi}] m")
+    if "intrinsics" in s:
+        k = s["intrinsics"]
+        print(f"camera   fx {k['fx']:g} fy {k['fy']:g} cx {k['cx']:g} cy {k['cy']:g} px, "
+              f"depth unit {k['depth_scale']:g} m ({k['path'] or 'given'})")
     try:
         check_units(seq, PreprocessConfig().max_extent)
     except InputError as exc:  # info only describes; extract refuses such input

@@ -242,7 +242,7 @@ def extract(
                   "points_per_frame": n_input,
                   "points_used_per_frame": [int(c) for c in seq.counts],
                   "rest_frame": int((reg.params or {}).get("rest_frame_index", -1)),
-                  "stopped_after": stop_after}
+                  "stopped_after": stop_after, **seq.meta}
         params = config.to_dict()
         params["timings_s"] = {k: round(v, 3) for k, v in timings.items()}
         skel.save_json(out / "skeleton.json", source=source, params=params)

@@ -133,7 +133,7 @@ def remove_sparse_frames(seq: "PointSequence", k: int = 10, ratio: float = 4.0,
                 frame=i)
         out.append(kept)
         removed[i] = 1.0 - len(kept) / max(len(pts), 1)
-    return PointSequence(out, seq.source, list(seq.names), seq.fmt), removed
+    return PointSequence(out, seq.source, list(seq.names), seq.fmt, dict(seq.meta)), removed
 
 
 def surface_cover(frames: Sequence[np.ndarray], spacing_factor: float = 4.0) -> np.ndarray:
@@ -712,5 +712,5 @@ def remove_background(seq: "PointSequence", *, seed: int = 0,
                 "set [preprocess] background = \"keep\" and crop by hand", seq.source, frame=i)
         out.append(sub)
         removed.append(1.0 - len(sub) / len(pts))
-    new = PointSequence(out, seq.source, list(seq.names), seq.fmt)
+    new = PointSequence(out, seq.source, list(seq.names), seq.fmt, dict(seq.meta))
     return new, BackgroundReport(planes, np.asarray(removed), cand)

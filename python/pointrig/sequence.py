@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -30,12 +31,17 @@ class PointSequence:
     fmt
         The detected input format (``"ply"``, ``"pcd"``, ``"xyz"``, ``"npy"``, ``"npz"``,
         ``"depth-png"`` or ``"memory"``).
+    meta
+        What the reader used besides the frames, JSON-able, recorded with the results: for depth
+        PNGs ``{"intrinsics": {"path": ..., "fx": ..., ...}}`` (pixels; ``depth_scale`` in
+        metres per unit).
     """
 
     frames: list[np.ndarray]
     source: str = "<memory>"
     names: list[str] = field(default_factory=list)
     fmt: str = "memory"
+    meta: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if not self.names:
@@ -95,13 +101,15 @@ class PointSequence:
             "points_max": int(c.max()),
             "bounds_min": [float(x) for x in lo],
             "bounds_max": [float(x) for x in hi],
+            **self.meta,
         }
 
     def subset(self, start: int = 0, stop: int | None = None, stride: int = 1) -> "PointSequence":
         """Frames ``start:stop:stride`` as a new sequence."""
         idx = list(range(len(self.frames)))[start:stop:stride]
         return PointSequence(
-            [self.frames[i] for i in idx], self.source, [self.names[i] for i in idx], self.fmt
+            [self.frames[i] for i in idx], self.source, [self.names[i] for i in idx], self.fmt,
+            dict(self.meta),
         )
 
     @staticmethod

@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import re
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -468,6 +469,7 @@ def read_sequence(
     """
     p = Path(path)
     fmt = detect_format(p)
+    meta: dict[str, Any] = {}  # PointSequence.meta: what the reader used
     if stride < 1:
         raise InputError(f"stride must be >= 1, got {stride}", p)
     if fmt == "npz":
@@ -483,10 +485,12 @@ def read_sequence(
         intr = None
         if fmt == "depth-png":
             if isinstance(intrinsics, dict):
-                intr = intrinsics
+                intr, intr_path = intrinsics, None
             else:
-                intr = read_intrinsics(intrinsics if intrinsics is not None
-                                       else find_intrinsics(p))
+                intr_path = Path(intrinsics) if intrinsics is not None else find_intrinsics(p)
+                intr = read_intrinsics(intr_path)
+            meta["intrinsics"] = {"path": None if intr_path is None else str(intr_path),
+                                  **{k: float(v) for k, v in intr.items()}}
         frames = [read_frame(f, intr) for f in files]
         names = [f.name for f in files]
     if len(frames) < min_frames:
@@ -512,4 +516,4 @@ def read_sequence(
                 f"{len(pts)} point(s) after crop/downsampling; at least {max(min_points, 1)} "
                 "needed", p / name if p.is_dir() else p, frame=i)
         out.append(pts)
-    return PointSequence(out, str(p), names, fmt)
+    return PointSequence(out, str(p), names, fmt, meta)
