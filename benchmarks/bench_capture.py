@@ -10,7 +10,9 @@ condition ``WIDTH@FPS`` of ``--conditions`` renders the same motion, view and se
   depth noise (disparity quantisation, axial noise) is the sensor's and does not change; the
   lateral jitter is in pixels, so it shrinks in metres;
 - ``FPS`` frames per second over the same stretch of motion: ``--frames`` at 30 fps, so 15
-  fps has half the frames and twice the motion between two of them.
+  fps has half the frames and twice the motion between two of them (the auto-placed camera
+  frames the sampled poses, so it may sit a few millimetres elsewhere;
+  ``tests/test_bench_capture.py`` checks that the poses are the same).
 
 Prints per sequence and condition the median points per frame, frames, joints, recall /
 precision, raw / normalised cm and the run time, the time also as a ratio to the first
@@ -43,18 +45,33 @@ from bench_registration_downstream import score_joints  # noqa: E402
 from pointrig.config import PipelineConfig  # noqa: E402
 from pointrig.pipeline import extract  # noqa: E402
 from pointrig.synth import synthesize  # noqa: E402
-from pointrig.synth.camera import KINECT_FX, KINECT_HEIGHT, KINECT_WIDTH, Camera  # noqa: E402
+from pointrig.synth.camera import Camera  # noqa: E402
 from pointrig.synth.noise import NoiseConfig  # noqa: E402
 
 DEFAULT_SEQUENCES = "human,human_walk,girl_run,v_girl_run_y30,quadruped_320"
 
 
-def camera(width: int) -> Camera:
-    """A pinhole camera of Kinect v1's field of view ``width`` pixels wide (height 3/4 of it,
-    focal length and principal point scaled), extrinsic unset."""
-    s = width / KINECT_WIDTH
-    height = int(round(KINECT_HEIGHT * s))
-    return Camera(KINECT_FX * s, KINECT_FX * s, (width - 1) / 2, (height - 1) / 2, width, height)
+def parse_conditions(text: str) -> list[tuple[int, float]]:
+    """``"640@30,1280@15"`` -> ``[(640, 30.0), (1280, 15.0)]`` (width in pixels, frames per
+    second); ``ValueError`` naming the problem otherwise."""
+    conds = []
+    for item in (c for c in text.split(",") if c):
+        try:
+            w, f = item.split("@")
+            cond = (int(w), float(f))
+        except ValueError:
+            raise ValueError(f"expected WIDTH@FPS[,...], got {item!r}") from None
+        if cond[0] < 16 or not 0 < cond[1] < float("inf"):
+            raise ValueError(f"widths of 16 pixels or more and positive frame rates, got {item!r}")
+        conds.append(cond)
+    if not conds:
+        raise ValueError("no condition given")
+    return conds
+
+
+def frames_at(fps: float, frames_at_30: int) -> int:
+    """Frames covering the stretch of motion that ``frames_at_30`` frames cover at 30 fps."""
+    return max(2, int(round(frames_at_30 * fps / 30)))
 
 
 def main(argv: list[str]) -> int:
@@ -68,12 +85,9 @@ def main(argv: list[str]) -> int:
                          "the rounding spread of bench_suite.py's repeat k")
     args = ap.parse_args(argv)
     try:
-        conds = [(int(c.split("@")[0]), float(c.split("@")[1]))
-                 for c in args.conditions.split(",") if c]
-    except (IndexError, ValueError):
-        ap.error(f"--conditions: expected WIDTH@FPS[,...], got {args.conditions!r}")
-    if not conds or min(w for w, _ in conds) < 64 or min(f for _, f in conds) <= 0:
-        ap.error("--conditions: widths of 64 pixels or more and positive frame rates")
+        conds = parse_conditions(args.conditions)
+    except ValueError as exc:
+        ap.error(f"--conditions: {exc}")
     known = {**SETS["suite"], **SETS["validation"]}
     names = [n for n in args.only.split(",") if n]
     unknown = [n for n in names if n not in known]
@@ -88,8 +102,8 @@ def main(argv: list[str]) -> int:
         kw = {k: v for k, v in kw.items() if k != "camera"}
         ref_time = None
         for w, fps in conds:
-            n_frames = max(2, int(round(args.frames * fps / 30)))
-            syn = synthesize(source, n_frames=n_frames, camera=camera(w), fps=fps,
+            n_frames = frames_at(fps, args.frames)
+            syn = synthesize(source, n_frames=n_frames, camera=Camera.kinect_fov(w), fps=fps,
                              noise=dataclasses.replace(NoiseConfig(), outliers=0.02), **kw)
             seq = syn.to_point_sequence()
             if args.repeat > 0:

@@ -334,3 +334,23 @@ def test_bundled_demo_is_reproducible(tmp_path):
     np.testing.assert_allclose(ga["joints"], gb["joints"], atol=1e-9)
     size = sum(f.stat().st_size for f in demo_path().rglob("*") if f.is_file())
     assert size < 3e6
+
+
+def test_kinect_fov_scales_the_image_not_the_view():
+    """``Camera.kinect_fov(w)`` is Kinect v1's view at another size: the 640 camera exactly,
+    and at 1280 every point lands on the doubled pixel coordinate (pixel centres at
+    ``2 (u + 1/2) - 1/2``), so the same scene gives 4x the pixels."""
+    from pointrig.errors import ConfigError
+
+    for w in (320, 640):
+        assert Camera.kinect_fov(w) == Camera.kinect(w)
+    big, ref = Camera.kinect_fov(1280), Camera.kinect(640)
+    assert (big.width, big.height, big.fx) == (1280, 960, 1050.0)
+    pts = np.random.default_rng(0).uniform([-1, -1, 1.5], [1, 1, 3.5], size=(50, 3))
+    u1, v1, _ = ref.project(pts)
+    u2, v2, _ = big.project(pts)
+    np.testing.assert_allclose(u2, 2 * (u1 + 0.5) - 0.5, atol=1e-9)
+    np.testing.assert_allclose(v2, 2 * (v1 + 0.5) - 0.5, atol=1e-9)
+    for bad in (8, 640.0, True):
+        with pytest.raises(ConfigError, match="camera width"):
+            Camera.kinect_fov(bad)
