@@ -18,7 +18,7 @@ Prints per sequence and condition the median points per frame, frames, joints, r
 precision, raw / normalised cm and the run time, the time also as a ratio to the first
 condition's, measured in the same run; then the means per condition::
 
-    PYTHONPATH=python python benchmarks/bench_capture.py                     # ~25 min
+    PYTHONPATH=python python benchmarks/bench_capture.py                     # ~16 min
     PYTHONPATH=python python benchmarks/bench_capture.py --conditions 640@30,1280@30 --only human
     PYTHONPATH=python python benchmarks/bench_capture.py --repeat 1  # the rounding spread
 
