@@ -452,8 +452,8 @@ def test_extract_on_a_recorder_folder_records_the_intrinsics(tmp_path):
         str(tmp_path / "rec" / "intrinsic.json"),
         o3d.camera.PinholeCameraIntrinsic(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy))
     for t, pts in enumerate(syn.frames):
-        u = np.rint(cam.fx * pts[:, 0] / pts[:, 2] + cam.cx).astype(int)
-        v = np.rint(cam.fy * pts[:, 1] / pts[:, 2] + cam.cy).astype(int)
+        u, v, _ = cam.project(pts)
+        u, v = np.rint(u).astype(int), np.rint(v).astype(int)
         inside = (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
         assert inside.mean() > 0.98  # the few others are the sensor model's stray outliers
         depth = np.zeros((cam.height, cam.width), np.uint16)

@@ -119,8 +119,6 @@ def remove_sparse_frames(seq: "PointSequence", k: int = 10, ratio: float = 4.0,
     EmptyFrameError
         If a frame keeps fewer than ``min_points`` points (naming the frame).
     """
-    from .sequence import PointSequence
-
     if ratio <= 0:
         return seq, np.zeros(seq.n_frames)
     out, removed = [], np.zeros(seq.n_frames)
@@ -133,7 +131,7 @@ def remove_sparse_frames(seq: "PointSequence", k: int = 10, ratio: float = 4.0,
                 frame=i)
         out.append(kept)
         removed[i] = 1.0 - len(kept) / max(len(pts), 1)
-    return PointSequence(out, seq.source, list(seq.names), seq.fmt, dict(seq.meta)), removed
+    return seq.with_frames(out), removed
 
 
 def surface_cover(frames: Sequence[np.ndarray], spacing_factor: float = 4.0) -> np.ndarray:
@@ -683,8 +681,6 @@ def remove_background(seq: "PointSequence", *, seed: int = 0,
     EmptyFrameError
         If a frame has fewer than 10 points left (naming the frame).
     """
-    from .sequence import PointSequence
-
     planes, cand = find_background_planes(seq.frames, seed=seed, **plane_options)
     if not planes:
         return seq, BackgroundReport([], np.zeros(seq.n_frames), cand)
@@ -712,5 +708,5 @@ def remove_background(seq: "PointSequence", *, seed: int = 0,
                 "set [preprocess] background = \"keep\" and crop by hand", seq.source, frame=i)
         out.append(sub)
         removed.append(1.0 - len(sub) / len(pts))
-    new = PointSequence(out, seq.source, list(seq.names), seq.fmt, dict(seq.meta))
+    new = seq.with_frames(out)
     return new, BackgroundReport(planes, np.asarray(removed), cand)

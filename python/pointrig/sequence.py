@@ -104,13 +104,17 @@ class PointSequence:
             **self.meta,
         }
 
+    def with_frames(self, frames: list[np.ndarray],
+                    names: list[str] | None = None) -> "PointSequence":
+        """A new sequence of ``frames`` (checked as any) with this one's source, format and
+        meta, and its frame names unless ``names`` are given."""
+        return PointSequence(frames, self.source, list(self.names if names is None else names),
+                             self.fmt, dict(self.meta))
+
     def subset(self, start: int = 0, stop: int | None = None, stride: int = 1) -> "PointSequence":
         """Frames ``start:stop:stride`` as a new sequence."""
         idx = list(range(len(self.frames)))[start:stop:stride]
-        return PointSequence(
-            [self.frames[i] for i in idx], self.source, [self.names[i] for i in idx], self.fmt,
-            dict(self.meta),
-        )
+        return self.with_frames([self.frames[i] for i in idx], [self.names[i] for i in idx])
 
     @staticmethod
     def source_path(source: str) -> Path:
