@@ -21,6 +21,8 @@ condition's, measured in the same run; then the means per condition::
     PYTHONPATH=python python benchmarks/bench_capture.py                     # ~16 min
     PYTHONPATH=python python benchmarks/bench_capture.py --conditions 640@30,1280@30 --only human
     PYTHONPATH=python python benchmarks/bench_capture.py --repeat 1  # the rounding spread
+    PYTHONPATH=python python benchmarks/bench_capture.py --variant \\
+        '{"registration": {"sigma2_start": "data"}}'                       # another config
 
 The sequences are names of :data:`bench_refine.SEQUENCES` or :data:`bench_refine.VALIDATION`;
 a sequence's own camera setting (``quadruped_320``) is replaced by the conditions here.
@@ -30,6 +32,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import sys
 import time
 from pathlib import Path
@@ -42,7 +45,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_refine import SETS, _jittered  # noqa: E402
 from bench_registration_downstream import score_joints  # noqa: E402
 
-from pointrig.config import PipelineConfig  # noqa: E402
+from pointrig.config import apply_overrides  # noqa: E402
 from pointrig.pipeline import extract  # noqa: E402
 from pointrig.synth import synthesize  # noqa: E402
 from pointrig.synth.camera import Camera  # noqa: E402
@@ -83,11 +86,20 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--repeat", type=int, default=0,
                     help="0: the input as generated; k > 0: moved by at most 1e-9 m (seed k), "
                          "the rounding spread of bench_suite.py's repeat k")
+    ap.add_argument("--variant", default="{}",
+                    help="JSON per-stage overrides of the defaults, as bench_suite.py's variants")
     args = ap.parse_args(argv)
     try:
         conds = parse_conditions(args.conditions)
     except ValueError as exc:
         ap.error(f"--conditions: {exc}")
+    try:
+        overrides = json.loads(args.variant)
+        if not isinstance(overrides, dict):
+            raise ValueError("not a JSON object of {stage: {parameter: value}}")
+        config = apply_overrides(overrides, where="--variant")
+    except ValueError as exc:  # ConfigError is one
+        ap.error(str(exc) if str(exc).startswith("--variant") else f"--variant: {exc}")
     known = {**SETS["suite"], **SETS["validation"]}
     names = [n for n in args.only.split(",") if n]
     unknown = [n for n in names if n not in known]
@@ -109,7 +121,7 @@ def main(argv: list[str]) -> int:
             if args.repeat > 0:
                 seq = _jittered(seq, args.repeat)
             t0 = time.perf_counter()
-            out = extract(seq, PipelineConfig(), None, pictures=False)
+            out = extract(seq, config, None, pictures=False)
             seconds = time.perf_counter() - t0
             ref_time = seconds if ref_time is None else ref_time
             rep = score_joints(out.skeleton.joint_positions, syn)
