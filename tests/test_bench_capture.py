@@ -26,6 +26,20 @@ def test_conditions_parse_and_refuse() -> None:
     assert [bench_capture.frames_at(f, 100) for f in (15, 30, 60)] == [50, 100, 200]
 
 
+@pytest.mark.parametrize("variant, message", [
+    ("[1]", "not a JSON object"),
+    ("{bad", "--variant: Expecting"),
+    ('{"x": {}}', "unknown section [x]"),
+    ('{"registration": {"sigma2_start": "bogus"}}', "sigma2_start must be one of"),
+])
+def test_a_bad_variant_is_refused_before_any_work(variant: str, message: str,
+                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exc:
+        bench_capture.main(["--variant", variant])
+    assert exc.value.code == 2
+    assert message in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("source", ["human", "girl"])
 def test_another_frame_rate_samples_the_same_motion(source: str) -> None:
     """At 15 fps frame k shows the pose of frame 2k at 30 fps, for a procedural figure and a glTF
