@@ -3,6 +3,7 @@ synthetic sequences with known correspondences."""
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import subprocess
 import sys
@@ -31,6 +32,8 @@ from pointrig.registration import (
     node_transforms_from_points,
     register_sequence,
     resolve_rest_frame,
+    rest_candidates,
+    sequence_misfit,
 )
 from pointrig.sequence import PointSequence
 
@@ -178,6 +181,63 @@ def test_visible_rest_frame_is_the_most_complete_frame_of_the_middle_half() -> N
     for bad in (-0.1, 1.0, "0.03", True):
         with pytest.raises(ConfigError, match="rest_cover_tolerance"):
             RegistrationConfig(rest_cover_tolerance=bad)
+
+
+def test_sequence_misfit_is_the_mean_brute_force_chamfer() -> None:
+    """Mean over frames of the symmetric truncated chamfer, against all pairwise distances in
+    numpy; an empty frame is skipped."""
+    rng = np.random.default_rng(5)
+    pts = rng.normal(size=(3, 40, 3))
+    frames = [rng.normal(size=(30, 3)) + 0.3, np.zeros((0, 3)), rng.normal(size=(25, 3))]
+    ref = []
+    for y, x in ((pts[0], frames[0]), (pts[2], frames[2])):
+        d = np.linalg.norm(y[:, None] - x[None], axis=2)
+        ref.append(np.minimum(d.min(1), 0.5).mean() + np.minimum(d.min(0), 0.5).mean())
+    assert sequence_misfit(pts, frames, 0.5) == pytest.approx(np.mean(ref), rel=1e-12)
+
+
+def test_fit_rest_candidates_are_the_visible_frame_and_unlike_poses() -> None:
+    """Frames alternate between two poses of the same cover (a limb patch moved 10 cm): the
+    candidates are the 'visible' frame first, then a frame of the other pose; identical poses
+    are never both candidates, and ``rest_candidates = 1`` leaves the 'visible' frame."""
+    a = _patches(150, (0, 1, 2))
+    b = a.copy()
+    b[len(b) * 2 // 3:] += [0.1, 0.0, 0.0]  # the third patch slides out
+    frames = [a if t % 2 == 0 else b for t in range(12)]
+    cfg = RegistrationConfig(rest_frame="fit", rest_candidates=3)
+    first = resolve_rest_frame(RegistrationConfig(rest_frame="visible"), 12, frames)
+    cands = rest_candidates(cfg, frames)
+    assert cands[0] == first == resolve_rest_frame(cfg, 12, frames)
+    assert len(cands) == 2 and cands[1] % 2 != first % 2  # the other pose, then nothing new
+    assert 3 <= cands[1] <= 8  # from the middle half
+    assert rest_candidates(RegistrationConfig(rest_frame="fit", rest_candidates=1),
+                           frames) == [first]
+    for bad in ({"rest_candidates": 0}, {"rest_fit_margin": 1.0}, {"rest_fit_margin": -0.1}):
+        with pytest.raises(ConfigError, match="rest_candidates"):
+            register_sequence(PointSequence(frames), RegistrationConfig(rest_frame="fit", **bad))
+
+
+def test_fit_rest_frame_keeps_the_registration_that_explains_the_frames_best() -> None:
+    """``rest_frame = "fit"`` returns exactly the registration from its chosen candidate (the
+    same as asking for that frame), and that candidate's mean misfit is the smallest of all
+    candidates' (no margin), each candidate registered on its own as the oracle."""
+    frames, _ = capsule_arm(8, 12.0, n=1500, seed=4)
+    seq = PointSequence(frames)
+    cfg = RegistrationConfig(rest_frame="fit", rest_candidates=3, rest_fit_margin=0.0,
+                             n_nodes=30)
+    fit = register_sequence(seq, cfg)
+    cands = rest_candidates(cfg, frames)
+    assert len(cands) >= 2
+    trunc = 3.0 * float(np.sqrt(cfg.sigma2_start_max))
+    scores = {}
+    for c in cands:
+        res = register_sequence(seq, dataclasses.replace(cfg, rest_frame=c))
+        scores[c] = sequence_misfit(res.points, frames, trunc)
+        if c == fit.params["rest_frame_index"]:
+            np.testing.assert_allclose(fit.points, res.points, atol=1e-9)
+    assert fit.params["rest_frame_index"] == min(scores, key=scores.get)
+    assert fit.params["rest_candidates_misfit"] == pytest.approx(
+        {int(c): v for c, v in scores.items()}, rel=1e-9)
 
 
 def test_middle_rest_frame_registers_both_ways() -> None:

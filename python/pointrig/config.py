@@ -114,6 +114,12 @@ class RegistrationConfig:
     # "visible": frames whose cover is within this fraction of the middle half's largest are
     # equal, and the one nearest the middle is taken (a shorter chain); 0 = the largest cover
     rest_cover_tolerance: float = 0.03
+    # "fit": the sequence is registered from up to rest_candidates frames of the near-largest
+    # cover (the "visible" one and the poses most unlike it) and the registration whose points
+    # explain the frames best (mean symmetric chamfer) is kept; another candidate must beat
+    # the "visible" one by more than rest_fit_margin (a fraction)
+    rest_candidates: int = 3
+    rest_fit_margin: float = 0.01
     n_rest_points: int = 2000  # M, points of the rest-pose point set surface
     node_spacing: float = 0.0  # deformation-graph node spacing, metres (0 = from n_nodes)
     n_nodes: int = 200  # target node count when node_spacing is 0
@@ -191,9 +197,9 @@ class RegistrationConfig:
             "sigma2_start": ("data", "residual", "fixed")})
         rf = self.rest_frame
         if isinstance(rf, bool) or not (isinstance(rf, numbers.Integral)
-                                        or rf in ("middle", "visible")):
-            raise ConfigError("[registration] rest_frame must be a frame index, 'middle' or "
-                              f"'visible', got {rf!r}")
+                                        or rf in ("middle", "visible", "fit")):
+            raise ConfigError("[registration] rest_frame must be a frame index, 'middle', "
+                              f"'visible' or 'fit', got {rf!r}")
         tol = self.rest_cover_tolerance
         if isinstance(tol, bool) or not isinstance(tol, numbers.Real) or not 0 <= tol < 1:
             raise ConfigError("[registration] rest_cover_tolerance must be in [0, 1), got "

@@ -271,7 +271,7 @@ def resolve_rest_frame(config: RegistrationConfig, n_frames: int,
     rf = config.rest_frame
     if rf == "middle":
         return n_frames // 2
-    if rf == "visible":
+    if rf in ("visible", "fit"):  # "fit": its first candidate (see rest_candidates)
         if frames is None or len(frames) != n_frames:
             raise ConfigError("[registration] rest_frame 'visible' needs the frames")
         lo, hi = n_frames // 4, n_frames - n_frames // 4
@@ -290,6 +290,11 @@ def _validate(config: RegistrationConfig, n_frames: int) -> None:
         raise ConfigError("[registration] omega must be in [0, 1)")
     if config.sigma2_init <= 0 or config.sigma2_min <= 0 or config.sigma2_start_max <= 0:
         raise ConfigError("[registration] sigma^2 parameters must be positive")
+    if config.rest_candidates < 1 or not 0.0 <= config.rest_fit_margin < 1.0:
+        raise ConfigError(
+            "[registration] rest_candidates must be >= 1 and rest_fit_margin in [0, 1), got "
+            f"{config.rest_candidates!r}, {config.rest_fit_margin!r}"
+        )
     if config.max_iterations < 1 or config.n_rest_points < 10:
         raise ConfigError("[registration] max_iterations >= 1 and n_rest_points >= 10 required")
     if config.rest_sparse_neighbors < 1 or not (config.rest_sparse_ratio == 0
@@ -403,13 +408,94 @@ def register_sequence(
     config = config or RegistrationConfig()
     f = seq.n_frames
     _validate(config, f)
-    rf = resolve_rest_frame(config, f, seq.frames)  # also validates it
     lo, hi = seq.bounds()
     if np.linalg.norm(hi - lo) > 50.0:
         log.warning(
             "sequence spans %.0f units: parameters assume metres (Table 1); scale the input",
             np.linalg.norm(hi - lo),
         )
+    if config.rest_frame != "fit":
+        rf = resolve_rest_frame(config, f, seq.frames)  # also validates it
+        return _register_from(seq, config, rf, progress)
+    candidates = rest_candidates(config, seq.frames)
+    k = len(candidates)
+
+    def sub(i: int) -> Callable[[int, int], None] | None:
+        if progress is None:
+            return None
+        return lambda done, total: progress(i * total + done, k * total)
+
+    trunc = 3.0 * float(np.sqrt(config.sigma2_start_max))
+    results, scores = [], []
+    for i, rf in enumerate(candidates):
+        results.append(_register_from(seq, config, rf, sub(i)))
+        scores.append(sequence_misfit(results[-1].points, seq.frames, trunc))
+    # the best fit, unless it explains the frames better than the first candidate (the
+    # "visible" frame) by no more than rest_fit_margin
+    i = int(np.argmin(scores))
+    if scores[i] >= (1.0 - config.rest_fit_margin) * scores[0]:
+        i = 0
+    best = results[i]
+    log.info("rest frame: candidates %s, mean misfit %s cm; chose %d",
+             candidates, [round(100 * v, 3) for v in scores], candidates[i])
+    best.params["rest_candidates_misfit"] = {int(c): float(v) for c, v in zip(candidates, scores)}
+    return best
+
+
+def sequence_misfit(points: np.ndarray, frames: Sequence[np.ndarray], trunc: float) -> float:
+    """Mean over frames of the symmetric truncated chamfer misfit
+    (:func:`pointrig.preprocess.chamfer_misfit`) between the registered points ``(F, M, 3)``
+    and the frames (``F`` arrays ``(N_t, 3)``), metres; empty frames are skipped."""
+    vals = [chamfer_misfit(y, x, trunc) for y, x in zip(points, frames) if len(x)]
+    return float(np.mean(vals)) if vals else 0.0
+
+
+def rest_candidates(config: RegistrationConfig, frames: Sequence[np.ndarray]) -> list[int]:
+    """Candidate rest frames of ``rest_frame = "fit"``: the "visible" frame first, then up to
+    ``rest_candidates - 1`` more of the same near-largest surface cover, each the one whose pose
+    differs most from those already chosen (farthest-point sampling on the symmetric chamfer
+    distance between centred frames, up to 2000 points each), while one differs by more than
+    twice the point spacing."""
+    n = len(frames)
+    first = resolve_rest_frame(dataclasses.replace(config, rest_frame="visible"), n, frames)
+    lo, hi = n // 4, n - n // 4
+    cover = surface_cover(frames[lo:hi])
+    good = np.flatnonzero(cover >= (1.0 - config.rest_cover_tolerance) * cover.max()) + lo
+    rng = np.random.default_rng(config.seed)
+
+    def centred(t: int) -> np.ndarray:
+        x = np.asarray(frames[t], dtype=float)
+        if len(x) > 2000:
+            x = x[np.sort(rng.choice(len(x), 2000, replace=False))]
+        return x - x.mean(axis=0)
+
+    pts = {int(t): centred(int(t)) for t in good}
+    pts.setdefault(first, centred(first))
+    trees = {t: cKDTree(x) for t, x in pts.items()}
+
+    def dist(a: int, b: int) -> float:
+        return float(trees[b].query(pts[a])[0].mean() + trees[a].query(pts[b])[0].mean())
+
+    # two samples of one surface lie about a spacing apart: a pose that differs by less than
+    # twice the subsample's spacing from every chosen one is not new
+    same = 2.0 * float(np.median(trees[first].query(pts[first], k=2)[0][:, 1]))
+    chosen = [first]
+    nearest = {int(t): dist(int(t), first) for t in good if int(t) != first}
+    while len(chosen) < config.rest_candidates and nearest:
+        t = max(nearest, key=lambda u: (nearest[u], -abs(u - n // 2)))
+        if nearest[t] <= same:
+            break
+        chosen.append(t)
+        del nearest[t]
+        for u in nearest:
+            nearest[u] = min(nearest[u], dist(u, t))
+    return chosen
+
+
+def _register_from(seq: PointSequence, config: RegistrationConfig, rf: int,
+                   progress: Callable[[int, int], None] | None) -> RegistrationResult:
+    """:func:`register_sequence` from rest frame ``rf``."""
+    f = seq.n_frames
     rest = rest_surface(
         seq.frames[rf],
         config.n_rest_points,
