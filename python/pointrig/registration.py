@@ -273,14 +273,21 @@ def resolve_rest_frame(config: RegistrationConfig, n_frames: int,
         return n_frames // 2
     if rf in ("visible", "fit"):  # "fit": its first candidate (see rest_candidates)
         if frames is None or len(frames) != n_frames:
-            raise ConfigError("[registration] rest_frame 'visible' needs the frames")
-        lo, hi = n_frames // 4, n_frames - n_frames // 4
-        cover = surface_cover(frames[lo:hi])
-        good = np.flatnonzero(cover >= (1.0 - config.rest_cover_tolerance) * cover.max()) + lo
+            raise ConfigError(f"[registration] rest_frame {rf!r} needs the frames")
+        good = _cover_candidates(config, frames)
         return int(good[np.argmin(np.abs(good - n_frames // 2))])
     if not 0 <= rf < n_frames:
         raise ConfigError(f"[registration] rest_frame {rf!r} outside 0..{n_frames - 1}")
     return int(rf)
+
+
+def _cover_candidates(config: RegistrationConfig, frames: Sequence[np.ndarray]) -> np.ndarray:
+    """Indices of the frames of the middle half (``F // 4`` to ``F - F // 4 - 1``) whose
+    surface cover lies within ``rest_cover_tolerance`` of the largest among them."""
+    n = len(frames)
+    lo, hi = n // 4, n - n // 4
+    cover = surface_cover(frames[lo:hi])
+    return np.flatnonzero(cover >= (1.0 - config.rest_cover_tolerance) * cover.max()) + lo
 
 
 def _validate(config: RegistrationConfig, n_frames: int) -> None:
@@ -390,6 +397,10 @@ def register_sequence(
     neighbour's own pose, ``predict_check``). The two chains run side by side on two threads
     once the rest frame and the frame after it are done; the result is the same as one after
     the other (``tests/test_determinism.py``).
+    With ``rest_frame = "fit"`` the sequence is registered from each of
+    :func:`rest_candidates` and the result whose points explain the frames best
+    (:func:`sequence_misfit`) is returned; its ``params["rest_candidates_misfit"]`` maps each
+    candidate to its misfit (metres).
 
     Parameters
     ----------
@@ -458,9 +469,7 @@ def rest_candidates(config: RegistrationConfig, frames: Sequence[np.ndarray]) ->
     twice the point spacing."""
     n = len(frames)
     first = resolve_rest_frame(dataclasses.replace(config, rest_frame="visible"), n, frames)
-    lo, hi = n // 4, n - n // 4
-    cover = surface_cover(frames[lo:hi])
-    good = np.flatnonzero(cover >= (1.0 - config.rest_cover_tolerance) * cover.max()) + lo
+    good = _cover_candidates(config, frames)
     rng = np.random.default_rng(config.seed)
 
     def centred(t: int) -> np.ndarray:
