@@ -275,7 +275,7 @@ def resolve_rest_frame(config: RegistrationConfig, n_frames: int,
         if frames is None or len(frames) != n_frames:
             raise ConfigError(f"[registration] rest_frame {rf!r} needs the frames")
         good = _cover_candidates(config, frames)
-        return int(good[np.argmin(np.abs(good - n_frames // 2))])
+        return _nearest_middle(good, n_frames)
     if not 0 <= rf < n_frames:
         raise ConfigError(f"[registration] rest_frame {rf!r} outside 0..{n_frames - 1}")
     return int(rf)
@@ -288,6 +288,18 @@ def _cover_candidates(config: RegistrationConfig, frames: Sequence[np.ndarray]) 
     lo, hi = n // 4, n - n // 4
     cover = surface_cover(frames[lo:hi])
     return np.flatnonzero(cover >= (1.0 - config.rest_cover_tolerance) * cover.max()) + lo
+
+
+def _nearest_middle(good: np.ndarray, n_frames: int) -> int:
+    """The index of ``good`` nearest the middle frame ``n_frames // 2`` (the "visible" frame
+    of :func:`_cover_candidates`' frames: the shortest registration chains)."""
+    return int(good[np.argmin(np.abs(good - n_frames // 2))])
+
+
+def _misfit_cap(config: RegistrationConfig) -> float:
+    """Cap (metres) of each distance in the chamfer misfits of step 1: three coarse-start
+    standard deviations, ``3 sqrt(sigma2_start_max)``."""
+    return 3.0 * float(np.sqrt(config.sigma2_start_max))
 
 
 def _validate(config: RegistrationConfig, n_frames: int) -> None:
@@ -436,7 +448,7 @@ def register_sequence(
             return None
         return lambda done, total: progress(i * total + done, k * total)
 
-    trunc = 3.0 * float(np.sqrt(config.sigma2_start_max))
+    trunc = _misfit_cap(config)
     results, scores = [], []
     for i, rf in enumerate(candidates):
         results.append(_register_from(seq, config, rf, sub(i)))
@@ -468,8 +480,8 @@ def rest_candidates(config: RegistrationConfig, frames: Sequence[np.ndarray]) ->
     distance between centred frames, up to 2000 points each), while one differs by more than
     twice the point spacing."""
     n = len(frames)
-    first = resolve_rest_frame(dataclasses.replace(config, rest_frame="visible"), n, frames)
     good = _cover_candidates(config, frames)
+    first = _nearest_middle(good, n)  # the "visible" frame
     rng = np.random.default_rng(config.seed)
 
     def centred(t: int) -> np.ndarray:
@@ -479,7 +491,6 @@ def rest_candidates(config: RegistrationConfig, frames: Sequence[np.ndarray]) ->
         return x - x.mean(axis=0)
 
     pts = {int(t): centred(int(t)) for t in good}
-    pts.setdefault(first, centred(first))
     trees = {t: cKDTree(x) for t, x in pts.items()}
 
     def dist(a: int, b: int) -> float:
@@ -550,7 +561,7 @@ def _register_from(seq: PointSequence, config: RegistrationConfig, rf: int,
             # hold the previous pose instead when it explains the frame better than the
             # prediction: after a jump or a sudden stop the prediction repeats the jump
             tree = cKDTree(x)
-            trunc = 3.0 * float(np.sqrt(config.sigma2_start_max))
+            trunc = _misfit_cap(config)
             m_hold = chamfer_misfit(points[t - step], x, trunc, tree)
             m_pred = chamfer_misfit(g.deform(r_init, t_init), x, trunc, tree)
             if m_hold < config.predict_check * m_pred:
