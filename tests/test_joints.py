@@ -185,6 +185,55 @@ def test_articulated_joint_solve_is_exact_with_true_weights_and_rotations():
     np.testing.assert_allclose(skin(fig.rest_points, fig.weights, fig.R, T), X, atol=1e-6)
 
 
+def test_articulated_joint_solve_matches_dense_least_squares():
+    # Oracle: the whole objective (per-frame root translations and every joint as unknowns)
+    # solved as one dense weighted least-squares problem in numpy, with the prior
+    # lambda_e |c_e - c~_e|^2 and lambda_e = prior_weight * mean_t sum_m a ws_me^2.
+    fig = make_figure("human", n_frames=4, n_points=300, obs_noise=0, reg_noise=0, outliers=0)
+    rng = np.random.default_rng(3)
+    F, B = fig.R.shape[:2]
+    Q, W, R, parent = fig.rest_points, fig.weights, fig.R, fig.bone_parent
+    z = skin(Q, W, R, fig.T) + rng.normal(scale=0.01, size=(F, len(Q), 3))
+    a = rng.uniform(0.2, 2.0, size=(F, len(Q)))
+    prior = fig.joints_rest + rng.normal(scale=0.03, size=fig.joints_rest.shape)
+    c, T = solve_joints_articulated(Q, W, R, a, z, parent, prior, 0.7)
+    edges = np.flatnonzero(parent >= 0)
+    E = len(edges)
+    sub = np.zeros((B, B))  # sub[e, b] = 1 if bone b is in the subtree of bone e
+    for b in range(B):
+        k = b
+        while k >= 0:
+            sub[k, b] = 1.0
+            k = parent[k]
+    ws = W @ sub[edges].T  # (M, E)
+    s = np.einsum("mb,fbij,mj->fmi", W, R, Q)
+    rows, rhs = [], []
+    n = 3 * F + 3 * E
+    for f in range(F):
+        A = R[f, parent[edges]] - R[f, edges]  # (E, 3, 3)
+        for m in range(len(Q)):
+            blk = np.zeros((3, n))
+            blk[:, 3 * f:3 * f + 3] = np.eye(3)
+            for e in range(E):
+                blk[:, 3 * F + 3 * e:3 * F + 3 * e + 3] = ws[m, e] * A[e]
+            sw = np.sqrt(a[f, m])
+            rows.append(sw * blk)
+            rhs.append(sw * (z[f, m] - s[f, m]))
+    lam = 0.7 * np.mean(np.einsum("fm,me->fe", a, ws ** 2), axis=0)
+    for e in range(E):
+        blk = np.zeros((3, n))
+        blk[:, 3 * F + 3 * e:3 * F + 3 * e + 3] = np.sqrt(lam[e]) * np.eye(3)
+        rows.append(blk)
+        rhs.append(np.sqrt(lam[e]) * prior[edges[e]])
+    sol = np.linalg.lstsq(np.vstack(rows), np.concatenate(rhs), rcond=None)[0]
+    np.testing.assert_allclose(c[edges], sol[3 * F:].reshape(E, 3), atol=1e-7)
+    root = int(np.flatnonzero(parent < 0)[0])
+    np.testing.assert_allclose(T[:, root], sol[:3 * F].reshape(F, 3), atol=1e-7)
+    # the prior made a difference (the oracle is not just the data term's minimiser)
+    c_free, _ = solve_joints_articulated(Q, W, R, a, z, parent, prior, 1e-9)
+    assert np.abs(c_free[edges] - c[edges]).max() > 1e-4
+
+
 # --------------------------------------------------------------------------- the EM
 
 
