@@ -199,6 +199,7 @@ def test_articulated_joint_solve_matches_dense_least_squares():
     c, T = solve_joints_articulated(Q, W, R, a, z, parent, prior, 0.7)
     edges = np.flatnonzero(parent >= 0)
     E = len(edges)
+    # subtree indicator written here, not joints._subtree_matrix: the oracle stays independent
     sub = np.zeros((B, B))  # sub[e, b] = 1 if bone b is in the subtree of bone e
     for b in range(B):
         k = b
