@@ -13,20 +13,27 @@ Prints, per sequence that every run holds, recall / precision / raw / normalised
 run (``*`` where it differs from the first run), then per run the means over those sequences:
 recall and precision over all of them, the two errors over the sequences where every run
 matches a joint (a sequence where one run matches nothing would otherwise move the error
-means by its absence). Sequences that only some runs hold are named and left out.
+means by its absence). Sequences that only some runs hold are named and left out. Under
+the means, each later run's difference from the first in each of the four means, with the
+two-sided p-value of a paired sign-flip test over the sequences (:func:`sign_flip_p`): how
+often flipping the signs of the per-sequence differences at random gives a mean difference at
+least as large. A p-value near 1 says the run differs from the first no more consistently than
+run-to-run noise would; it does not replace repeats (``bench_suite.py --repeats``).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import itertools
 import math
+import random
 import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-__all__ = ["Run", "run_from_reports", "load_run", "common_means", "main"]
+__all__ = ["Run", "run_from_reports", "load_run", "common_means", "sign_flip_p", "main"]
 
 
 @dataclass(frozen=True)
@@ -115,6 +122,28 @@ def common_means(runs: list[Run]) -> tuple[list[str], list[str],
     return names, matched, means
 
 
+def sign_flip_p(diffs: list[float], exact_up_to: int = 16, samples: int = 20000,
+                seed: int = 0) -> float:
+    """Two-sided p-value of the paired sign-flip (permutation) test that ``diffs``, per-sequence
+    differences between two runs, are symmetric about 0: the share of the ``2^n`` sign
+    patterns (all of them for ``n <= exact_up_to``, else ``samples`` random ones drawn with
+    ``seed``) whose mean is at least ``|mean(diffs)|`` in size; 1.0 for no differences.
+    Zero differences count as ties and are kept (their signs do not matter)."""
+    n = len(diffs)
+    if n == 0 or all(d == 0 for d in diffs):
+        return 1.0
+    target = abs(sum(diffs)) - 1e-12 * sum(abs(d) for d in diffs)
+    if n <= exact_up_to:
+        patterns = itertools.product((1.0, -1.0), repeat=n)
+        total = 2 ** n
+    else:
+        rng = random.Random(seed)
+        patterns = ([rng.choice((1.0, -1.0)) for _ in range(n)] for _ in range(samples))
+        total = samples
+    hits = sum(1 for sg in patterns if abs(sum(g * d for g, d in zip(sg, diffs))) >= target)
+    return hits / total
+
+
 def _cell(row: tuple[float, float, float, float]) -> str:
     return f"{row[0]:.2f}/{row[1]:.2f} {100 * row[2]:5.2f} {100 * row[3]:5.2f}"
 
@@ -150,6 +179,16 @@ def main(argv: list[str]) -> int:
     for k, m in enumerate(means):
         print(f"run {k}: recall {m[0]:.3f} precision {m[1]:.3f} raw {100 * m[2]:.2f} "
               f"normalised {100 * m[3]:.2f}  {runs[k].label}")
+    print("\ndifference from run 0 (p: paired sign-flip test over the sequences):")
+    for k in range(1, len(runs)):
+        parts = []
+        for i, (what, seqs, scale, fmt) in enumerate((
+                ("recall", names, 1.0, "+.3f"), ("precision", names, 1.0, "+.3f"),
+                ("raw", matched, 100.0, "+.2f"), ("normalised", matched, 100.0, "+.2f"))):
+            d = [runs[k].rows[n][i] - runs[0].rows[n][i] for n in seqs]
+            mean = sum(d) / len(d) if d else float("nan")
+            parts.append(f"{what} {scale * mean:{fmt}} (p {sign_flip_p(d):.2f})")
+        print(f"run {k}: " + ", ".join(parts))
     return 0
 
 

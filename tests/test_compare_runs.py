@@ -64,3 +64,38 @@ def test_cli_prints_the_table_and_fails_cleanly_on_a_bad_file(tmp_path, capsys) 
     bad.write_text("{}")
     assert compare_runs.main([str(a), str(bad)]) == 1
     assert "bad.json: not a bench_suite.py --json file" in capsys.readouterr().err
+
+
+def _sign_flip_oracle(d: np.ndarray) -> float:
+    """Every sign pattern at once in numpy (rows of a +-1 matrix)."""
+    n = len(d)
+    signs = 1.0 - 2.0 * ((np.arange(2 ** n)[:, None] >> np.arange(n)) & 1)
+    return float(np.mean(np.abs(signs @ d) >= abs(d.sum()) - 1e-12 * np.abs(d).sum()))
+
+
+def test_sign_flip_p_against_an_enumeration_and_closed_forms() -> None:
+    """Closed forms: n equal-signed differences reach |mean| only with all signs the same or
+    all flipped, p = 2 / 2^n; no difference gives 1. Oracle: numpy over all 2^n patterns, and
+    the sampled test (n > exact_up_to) within its Monte Carlo error of the enumeration."""
+    assert compare_runs.sign_flip_p([0.1, 0.2, 0.3, 0.4]) == pytest.approx(2 / 16)
+    assert compare_runs.sign_flip_p([0.0, 0.0]) == 1.0
+    assert compare_runs.sign_flip_p([]) == 1.0
+    assert compare_runs.sign_flip_p([0.05, -0.05]) == 1.0
+    rng = np.random.default_rng(4)
+    for n in (3, 7, 12):
+        d = rng.normal(0.3, 1.0, size=n)
+        assert compare_runs.sign_flip_p(list(d)) == pytest.approx(_sign_flip_oracle(d))
+    d = rng.normal(0.4, 1.0, size=18)
+    exact = _sign_flip_oracle(d)
+    sampled = compare_runs.sign_flip_p(list(d), samples=20000)
+    assert abs(sampled - exact) < 4 * np.sqrt(exact * (1 - exact) / 20000) + 1e-3
+    assert compare_runs.sign_flip_p(list(d), exact_up_to=18) == pytest.approx(exact)
+
+
+def test_cli_prints_the_paired_differences(tmp_path, capsys) -> None:
+    """Three sequences, every one higher in run 1: recall +0.1 with p = 2 / 8."""
+    a = _write(tmp_path / "a.json", {f"0/0/s{i}": (0.5, 0.5, 0.05, 0.02) for i in range(3)})
+    b = _write(tmp_path / "b.json", {f"0/0/s{i}": (0.6, 0.5, 0.05, 0.02) for i in range(3)})
+    assert compare_runs.main([str(a), str(b)]) == 0
+    out = capsys.readouterr().out
+    assert "run 1: recall +0.100 (p 0.25), precision +0.000 (p 1.00)" in out
