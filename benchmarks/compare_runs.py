@@ -24,8 +24,8 @@ run-to-run noise would; it does not replace repeats (``bench_suite.py --repeats`
 from __future__ import annotations
 
 import argparse
-import json
 import itertools
+import json
 import math
 import random
 import sys
