@@ -165,6 +165,39 @@ def test_refinement_is_on_by_default_and_off_reuses_the_checkpoint(demo_run, tmp
     assert rep.normalized_error <= 0.04, rep.format_table()
 
 
+def test_rest_frame_option_sets_the_rest_pose_and_is_recorded(tmp_path, capsys):
+    """``--rest-frame N`` (``[registration] rest_frame``): frame N's pose is the rest pose, so
+    the output's rest joints are its frame-N joints (the skinning's transforms of the rest frame
+    are the identity up to step 3's fit), every other frame's differ; the index is recorded in
+    skeleton.json; the demo's joints are still found (ground truth as the oracle). A bad name
+    and an index outside the frames are one error line each, before any step, with nothing
+    written."""
+    out = tmp_path / "rest5"
+    code = main(["extract", str(demo_path() / "frames"), "-o", str(out), "-q",
+                 "--no-pictures", "--rest-frame", "5"])
+    assert code == 0
+    doc = json.loads((out / "skeleton.json").read_text())
+    assert doc["source"]["rest_frame"] == 5
+    assert doc["params"]["registration"]["rest_frame"] == 5
+    pos = np.asarray(doc["joint_positions"])
+    rest = np.asarray([j["rest_position"] for j in doc["joints"]])
+    off = np.linalg.norm(pos - rest[None], axis=2).max(axis=1)  # (F,) metres
+    assert off[5] < 0.005, off
+    assert np.delete(off, 5).min() > 2 * off[5], off
+    rep = evaluate_files(out / "skeleton.json", demo_path() / "gt.npz")
+    assert rep.recall >= 0.8, rep.format_table()
+    capsys.readouterr()
+    frames = json.loads((out / "skeleton.json").read_text())["source"]["frames"]
+    for value, message in (("sideways", "rest_frame must be a frame index"),
+                           (str(frames), f"rest_frame {frames} outside 0..{frames - 1}")):
+        bad = tmp_path / f"bad-{value}"
+        assert main(["extract", str(demo_path() / "frames"), "-o", str(bad), "--rest-frame",
+                     value]) == 1
+        err = capsys.readouterr().err
+        assert message in err, err
+        assert len(err.strip().splitlines()) == 1 and not bad.exists()
+
+
 def test_max_joints_caps_the_skeleton_and_is_recorded(demo_run, tmp_path, capsys):
     """``--max-joints N`` (``[structure] max_joints``, docs/structure.md "Session 39"): at most
     N joints, the cap recorded in skeleton.json, the demo's joints still found and fewer

@@ -128,7 +128,19 @@ def _config_from_args(args: argparse.Namespace):
     if getattr(args, "max_joints", None) is not None:  # extract only; checked by the config
         cfg = dataclasses.replace(cfg, structure=dataclasses.replace(
             cfg.structure, max_joints=args.max_joints))
+    if getattr(args, "rest_frame", None) is not None:  # extract only; checked by the config
+        cfg = dataclasses.replace(cfg, registration=dataclasses.replace(
+            cfg.registration, rest_frame=_rest_frame_arg(args.rest_frame)))
     return cfg
+
+
+def _rest_frame_arg(text: str) -> int | str:
+    """``--rest-frame``'s value: a frame index (an integer) or a choice name, as given (the
+    config checks both: a bad name or an index outside the frames is one error line)."""
+    try:
+        return int(text)
+    except ValueError:
+        return text
 
 
 def _read_configured(args: argparse.Namespace, cfg):
@@ -306,6 +318,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="at most N joints, when you know the subject (an arm: 3, shoulder, "
                         "elbow, wrist); overrides [structure] max_joints (default 0: as many "
                         "as the motion shows)")
+    p.add_argument("--rest-frame", default=None, metavar="N|visible|middle|fit",
+                   help="the frame whose pose is the rest pose: an index among the frames used "
+                        "(after --start/--stride), or visible (default: most surface, near the "
+                        "middle), middle, fit; overrides [registration] rest_frame. A frame "
+                        "where no limb touches the body or another limb (a T- or A-pose) "
+                        "gives the best skeleton")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=cmd_extract)
 
