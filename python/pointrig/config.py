@@ -451,6 +451,19 @@ class JointsConfig:
     # the rotations the data leave free (small, near-planar bones, which otherwise spin by tens
     # of degrees per frame). 0 = off (the paper)
     rotation_smoothing: float = 0.01
+    # output bones (our deviation, docs/joints.md "Session 45"): a round limb's roll about its
+    # own axis is a near null mode of one-sided depth data, and the fitted limbs roll by tens
+    # of degrees while the joints stay put. "minimal": each elongated non-root bone with one
+    # child (or none) gets its parent's rotation times the smallest turn that gives its axis
+    # the fitted direction (pointrig.kinematics.minimal_twist; joint trajectories unchanged);
+    # "fit": the rotations as fitted. A bone counts as a limb when its points' spread along
+    # the axis is at least twist_min_elongation x their largest spread across it. "fit" stays
+    # the default: 14 sequences, the output bones' p90 rotation error (bones' mean) 47.5 ->
+    # 44.4 deg, better on all 7 procedural figures (round limbs: human 58.6 -> 47.5) but worse
+    # on the glTF rigs whose shape fixes the roll (girl RunTrack 54.1 -> 57.9, rigged_figure
+    # 1.1 -> 1.6): benchmarks/bench_registration_twist.py
+    bone_twist: str = "fit"
+    twist_min_elongation: float = 2.0
     # --- initial bone transforms (our deviation, docs/joints.md session 14) ---
     # "track": before the EM, step 2's skeleton is tracked through the observed frames, frame
     # by frame outwards from the rest frame (constant-velocity prediction, coarse-to-fine
@@ -483,7 +496,7 @@ class JointsConfig:
     def __post_init__(self) -> None:
         _check_choices(self, "joints", {
             "mode": ("articulated", "paper"), "init": ("track", "structure"),
-            "weight_candidates": ("tree", "all")})
+            "weight_candidates": ("tree", "all"), "bone_twist": ("minimal", "fit")})
 
 
 @dataclass(frozen=True)

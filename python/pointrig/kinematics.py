@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["skin", "solve_joint_positions", "joint_trajectories"]
+__all__ = ["skin", "solve_joint_positions", "joint_trajectories", "swing_twist", "minimal_twist"]
 
 
 def skin(rest_points: np.ndarray, weights: np.ndarray, R: np.ndarray, T: np.ndarray) -> np.ndarray:
@@ -111,3 +111,136 @@ def joint_trajectories(
             pj = np.einsum("fij,j->fi", R[:, j], joints_rest[k]) + T[:, j]
             out[:, k] = 0.5 * (pk + pj)
     return out
+
+
+def swing_twist(R: np.ndarray, axis: np.ndarray) -> tuple[np.ndarray, float]:
+    """Split a rotation into a swing and a twist about ``axis``: ``R = swing @ twist``.
+
+    ``twist`` turns about ``axis`` by the returned angle; ``swing`` turns about an axis
+    perpendicular to ``axis`` (the swing-twist decomposition, from the quaternion's part along
+    ``axis``).
+
+    Parameters
+    ----------
+    R
+        ``(3, 3)`` rotation matrix.
+    axis
+        ``(3,)`` direction (need not be unit length; its sign does not change ``swing``).
+
+    Returns
+    -------
+    swing
+        ``(3, 3)`` rotation.
+    angle
+        Twist angle in radians, in ``[-pi, pi]``, right-handed about ``axis``.
+    """
+    from scipy.spatial.transform import Rotation
+
+    a = np.asarray(axis, dtype=np.float64)
+    a = a / np.linalg.norm(a)
+    x, y, z, w = Rotation.from_matrix(np.asarray(R, dtype=np.float64)).as_quat()
+    along = float(np.dot((x, y, z), a))
+    angle = 2.0 * float(np.arctan2(along, w))
+    angle = (angle + np.pi) % (2.0 * np.pi) - np.pi
+    twist = Rotation.from_rotvec(angle * a).as_matrix()
+    return np.asarray(R) @ twist.T, angle
+
+
+def _min_rotations(a: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``(F, 3, 3)`` the smallest rotations taking the unit ``a (3,)`` to the unit ``v (F, 3)``
+    (about ``a x v``); antiparallel: a half turn about an axis perpendicular to ``a``."""
+    F = len(v)
+    k = np.cross(a, v)  # (F, 3), |k| = sin
+    c = v @ a  # (F,) cos
+    K = np.zeros((F, 3, 3))
+    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -k[:, 2], k[:, 1], -k[:, 0]
+    K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = k[:, 2], -k[:, 1], k[:, 0]
+    flip = c < -1.0 + 1e-9
+    den = np.where(flip, 1.0, 1.0 + c)
+    out = np.eye(3) + K + np.einsum("fij,fjk->fik", K, K) / den[:, None, None]
+    if flip.any():
+        p = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+        p /= np.linalg.norm(p)
+        out[flip] = 2.0 * np.outer(p, p) - np.eye(3)
+    return out
+
+
+def minimal_twist(R: np.ndarray, T: np.ndarray, joints_rest: np.ndarray,
+                  bone_parent: np.ndarray, rest_points: np.ndarray, labels: np.ndarray,
+                  min_elongation: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+    """Bone transforms with no twist of a limb about its own axis beyond what it had at rest.
+
+    A round limb's rotation about its own axis is a near null mode of a correspondence-free
+    fit to one-sided depth data (docs/registration.md "Session 45"): the fitted bones roll by
+    tens of degrees (p90 60-120 deg on the arms of the procedural human) while every joint
+    stays in place. This sets, for each non-root bone whose axis is defined and whose points
+    are elongated along it, the rotation to its parent's (already corrected) rotation times
+    the smallest rotation that gives the axis its fitted direction; the translation keeps the
+    head joint in place. The axis runs from the bone's head joint to its only child's head
+    joint, or for a leaf to the centroid of its points; bones with several children, the root,
+    and bones whose points' spread along the axis is less than ``min_elongation`` times their
+    largest spread across it (a torso, a head, a palm: their shape fixes the twist) keep
+    their transforms. Every joint trajectory (:func:`joint_trajectories`) is unchanged: each
+    bone still carries its head and its child's head to the same places.
+
+    Parameters
+    ----------
+    R, T
+        ``(F, B, 3, 3)`` and ``(F, B, 3)`` bone transforms ``T_frame_rest`` (metres).
+    joints_rest
+        ``(B, 3)`` head joint of each bone, rest pose, metres.
+    bone_parent
+        ``(B,)`` parent bone, ``-1`` for the root.
+    rest_points
+        ``(M, 3)`` rest points, metres.
+    labels
+        ``(M,)`` bone of each rest point.
+    min_elongation
+        Spread ratio (standard deviations) above which a bone counts as a limb.
+
+    Returns
+    -------
+    R, T
+        The corrected ``(F, B, 3, 3)`` and ``(F, B, 3)`` (new arrays).
+    """
+    R = np.asarray(R, dtype=np.float64)
+    T = np.asarray(T, dtype=np.float64)
+    parent = np.asarray(bone_parent, dtype=np.int64)
+    joints_rest = np.asarray(joints_rest, dtype=np.float64)
+    rest_points = np.asarray(rest_points, dtype=np.float64)
+    labels = np.asarray(labels, dtype=np.int64)
+    R2, T2 = R.copy(), T.copy()
+    B = len(parent)
+    order: list[int] = [int(b) for b in np.flatnonzero(parent < 0)]
+    for b in order:  # breadth-first: parents first (the list grows while it is walked)
+        order.extend(int(c) for c in np.flatnonzero(parent == b))
+    for b in order:
+        p = int(parent[b])
+        if p < 0:
+            continue
+        kids = np.flatnonzero(parent == b)
+        pts = rest_points[labels == b]
+        if len(kids) == 1:
+            a = joints_rest[kids[0]] - joints_rest[b]
+        elif len(kids) == 0 and len(pts) >= 3:
+            a = pts.mean(0) - joints_rest[b]
+        else:
+            continue
+        n = float(np.linalg.norm(a))
+        if len(pts) < 3 or n <= 1e-9:
+            continue
+        a = a / n
+        X = pts - pts.mean(0)
+        along = X @ a
+        across = X - along[:, None] * a
+        w = np.linalg.eigvalsh(across.T @ across)[-1]  # largest spread across the axis
+        if np.sqrt(along @ along) < min_elongation * np.sqrt(max(w, 0.0)):
+            continue
+        d = np.einsum("fij,j->fi", R[:, b], a)  # the fitted world direction of the axis
+        v = np.einsum("fji,fj->fi", R2[:, p], d)  # ... in the parent's (corrected) rest frame
+        v /= np.linalg.norm(v, axis=1, keepdims=True)
+        Rn = np.einsum("fij,fjk->fik", R2[:, p], _min_rotations(a, v))
+        c = joints_rest[b]
+        T2[:, b] = np.einsum("fij,j->fi", R[:, b], c) + T[:, b] - np.einsum("fij,j->fi", Rn, c)
+        R2[:, b] = Rn
+    return R2, T2

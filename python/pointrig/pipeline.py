@@ -26,7 +26,7 @@ import numpy as np
 
 from .config import PipelineConfig
 from .export import write_bvh, write_gltf
-from .kinematics import joint_trajectories
+from .kinematics import joint_trajectories, minimal_twist
 from .preprocess import remove_sparse_frames
 from .sequence import PointSequence, check_units
 from .skeleton import Skeleton
@@ -234,6 +234,9 @@ def extract(
     # the output tree (a leaf root moves to the body's centre), then the skeleton
     parent, joints_rest = struct_mod.output_tree(reg.rest_points, labels, st.bone_parent,
                                                  joints_rest, config.structure, st.view_camera)
+    if stop_after == "joints" and config.joints.bone_twist == "minimal":
+        R, T = minimal_twist(R, T, joints_rest, parent, reg.rest_points, labels,
+                             config.joints.twist_min_elongation)
     skel = build_skeleton(reg.rest_points, parent, joints_rest, R, T, weights, labels)
     result.skeleton = skel
 

@@ -1,0 +1,146 @@
+"""How far the registration turns each true bone, and how much of that error is twist about
+the bone's own axis (step 1, §4; docs/registration.md "Session 45").
+
+For each sequence the registration (step 1, and the refined registration of the whole
+pipeline) and the output skeleton's bones (the rest points carried rigidly by their bone) are
+scored per true bone against the exact surface (``SynthSequence.surface``): every
+rest point is tied to its nearest surface sample in the rest frame (within ``--max-offset``),
+whose skinning label gives its bone; per bone with at least ``--min-points`` such points and
+per frame ``t``, the rotation error is ``E = R_reg R_true^T``, with ``R_reg`` the Kabsch
+rotation of the registered points from the rest frame to frame ``t`` and ``R_true`` that of
+their surface samples. ``E`` is split into a swing and a twist about the bone's axis in frame
+``t`` (the first principal direction of its surface samples,
+:func:`pointrig.kinematics.swing_twist`). Prints per bone the 90th percentile over the frames
+of the whole error angle and of the twist (degrees), per sequence the median and mean over the
+bones and the fraction of the squared error angle that is twist, then per variant and stage
+the mean over the sequences of the bones' mean::
+
+    PYTHONPATH=python python benchmarks/bench_registration_twist.py --only girl_run
+    PYTHONPATH=python python benchmarks/bench_registration_twist.py --only girl_run \\
+        '{}' '{"registration": {"normal_kappa": 0.0}}'
+
+A registration that slides round a limb (a cylinder's rotation about its axis is nearly a null
+mode of a single-view GMM) shows a large twist with a small misfit: the template still lies on
+the data.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from bench_refine import add_set_option, chosen, suite  # noqa: E402
+
+from pointrig.config import apply_overrides  # noqa: E402
+from pointrig.joints import posed_rest_points  # noqa: E402
+from pointrig._core import kabsch  # noqa: E402
+from pointrig.kinematics import swing_twist  # noqa: E402
+from pointrig.pipeline import extract  # noqa: E402
+
+
+def bone_errors(rest_points: np.ndarray, points: np.ndarray, rest_frame: int,
+                surface: np.ndarray, surface_labels: np.ndarray, max_offset: float = 0.02,
+                min_points: int = 20) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Per true bone, the registration's rotation error and its twist per frame.
+
+    Parameters
+    ----------
+    rest_points
+        ``(M, 3)`` rest points (metres, rest frame).
+    points
+        ``(F, M, 3)`` registered points.
+    rest_frame
+        Index of the rest frame in ``surface``.
+    surface, surface_labels
+        ``(F, S, 3)`` exact surface samples and their ``(S,)`` bone labels.
+    max_offset
+        Largest rest-frame distance (metres) from a rest point to its surface sample.
+    min_points
+        Bones with fewer tied points are left out.
+
+    Returns
+    -------
+    ``{bone: (angle (F,), twist (F,))}`` in degrees; ``twist`` is signed.
+    """
+    d, s = cKDTree(surface[rest_frame]).query(rest_points)
+    ok = d < max_offset
+    lab = surface_labels[s]
+    out: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    for b in np.unique(lab[ok]):
+        sel = ok & (lab == b)
+        if sel.sum() < min_points:
+            continue
+        Y, S = points[:, sel], surface[:, s[sel]]
+        F = len(Y)
+        ang, tw = np.zeros(F), np.zeros(F)
+        for t in range(F):
+            R_reg, _ = kabsch(np.ascontiguousarray(Y[rest_frame]), np.ascontiguousarray(Y[t]))
+            R_true, _ = kabsch(np.ascontiguousarray(S[rest_frame]), np.ascontiguousarray(S[t]))
+            E = R_reg @ R_true.T
+            c = S[t] - S[t].mean(0)
+            axis = np.linalg.eigh(c.T @ c)[1][:, -1]
+            ang[t] = np.degrees(np.arccos(np.clip((np.trace(E) - 1) / 2, -1, 1)))
+            tw[t] = np.degrees(swing_twist(E, axis)[1])
+        out[int(b)] = (ang, tw)
+    return out
+
+
+def main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("variants", nargs="*", default=["{}"], help="JSON overrides per variant")
+    ap.add_argument("--frames", type=int, default=100)
+    add_set_option(ap)
+    ap.add_argument("--only", default="", help="comma-separated sequence names")
+    ap.add_argument("--max-offset", type=float, default=0.02, help="metres")
+    ap.add_argument("--min-points", type=int, default=20)
+    a = ap.parse_args(argv)
+    sequences, only = chosen(ap, a)
+    cfgs = [apply_overrides(json.loads(v), where=f"variant {i}")
+            for i, v in enumerate(a.variants)]
+    summary: dict[tuple[int, str], list[float]] = {}
+    for name, syn in suite(a.frames, only, sequences):
+        seq = syn.to_point_sequence()
+        for v, cfg in enumerate(cfgs):
+            out = extract(seq, cfg, None, pictures=False)
+            reg = out.registration
+            stages = [("step 1", reg.points), ("refined", out.refined_registration.points
+                                                if out.refined_registration else None)]
+            sk = out.skeleton  # the output bones carrying the rest points rigidly
+            if sk is not None and sk.labels is not None:
+                stages.append(("output bones", posed_rest_points(
+                    sk.rest_points, sk.labels, sk.bone_rotations, sk.bone_translations)))
+            rf = int(reg.params["rest_frame_index"])
+            for stage, points in stages:
+                if points is None:
+                    continue
+                errs = bone_errors(reg.rest_points, points, rf, syn.surface,
+                                   syn.surface_labels, a.max_offset, a.min_points)
+                print(f"{name} variant {v} {stage} (rest frame {rf}): bone p90 angle / twist deg")
+                p90a = []
+                share = []
+                for b, (ang, tw) in errs.items():
+                    p90a.append(np.percentile(ang, 90))
+                    share.append(np.sum(tw ** 2) / max(np.sum(ang ** 2), 1e-12))
+                    print(f"  {syn.joint_names[b]:<16} {p90a[-1]:6.1f} "
+                          f"{np.percentile(np.abs(tw), 90):6.1f}")
+                print(f"  over {len(errs)} bones: p90 angle median {np.median(p90a):.1f} / mean "
+                      f"{np.mean(p90a):.1f} deg, twist share of the squared error (median) "
+                      f"{np.median(share):.2f}", flush=True)
+                summary.setdefault((v, stage), []).append(np.mean(p90a))
+    print("\nmean over the sequences of the bones' mean p90 rotation error, degrees:")
+    for (v, stage), vals in summary.items():
+        print(f"  variant {v} {stage:<14} {np.mean(vals):6.1f} ({len(vals)} sequences)  "
+              f"{a.variants[v]}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))

@@ -1,0 +1,153 @@
+"""The swing-twist split (pointrig.kinematics.swing_twist) against constructed rotations, and
+benchmarks/bench_registration_twist.py's per-bone twist against a known registration error."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from pointrig.kinematics import swing_twist
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+
+from bench_registration_twist import bone_errors  # noqa: E402
+
+
+def _perpendicular(a: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    v = rng.normal(size=3)
+    v -= v.dot(a) * a
+    return v / np.linalg.norm(v)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_swing_twist_recovers_a_built_rotation(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    a = rng.normal(size=3)
+    a /= np.linalg.norm(a)
+    theta = rng.uniform(-3.0, 3.0)
+    swing = Rotation.from_rotvec(rng.uniform(0.1, 2.5) * _perpendicular(a, rng)).as_matrix()
+    R = swing @ Rotation.from_rotvec(theta * a).as_matrix()
+    got_swing, got_theta = swing_twist(R, 3.0 * a)  # any length
+    assert got_theta == pytest.approx(theta, abs=1e-9)
+    np.testing.assert_allclose(got_swing, swing, atol=1e-9)
+    # the swing's own axis is perpendicular to a; a flipped axis flips the angle only
+    assert abs(Rotation.from_matrix(got_swing).as_rotvec().dot(a)) < 1e-9
+    assert swing_twist(R, -a)[1] == pytest.approx(-theta, abs=1e-9)
+
+
+def test_swing_twist_of_pure_rotations() -> None:
+    a = np.array([0.0, 0.0, 1.0])
+    sw, th = swing_twist(Rotation.from_rotvec([0, 0, 0.7]).as_matrix(), a)
+    assert th == pytest.approx(0.7)
+    np.testing.assert_allclose(sw, np.eye(3), atol=1e-12)
+    sw, th = swing_twist(Rotation.from_rotvec([0.7, 0, 0]).as_matrix(), a)
+    assert th == pytest.approx(0.0, abs=1e-12)
+    np.testing.assert_allclose(sw, Rotation.from_rotvec([0.7, 0, 0]).as_matrix(), atol=1e-12)
+
+
+def test_bone_errors_sees_a_registration_twisted_about_the_limb() -> None:
+    """Two rigid 'limbs' (cylinders along x and along y) move; the registration follows the
+    first exactly and turns the second by 25 deg too far about its own axis: the error of the
+    first is zero, the second's is 25 deg and all twist."""
+    rng = np.random.default_rng(3)
+    F, n = 6, 300
+    u = rng.uniform(0, 2 * np.pi, n)
+    h = rng.uniform(0, 0.4, n)
+    cyl_x = np.c_[h, 0.05 * np.cos(u), 0.05 * np.sin(u)]
+    cyl_y = np.c_[0.05 * np.cos(u), h, 0.05 * np.sin(u)] + [1.0, 0, 0]
+    rest = np.vstack([cyl_x, cyl_y])
+    labels = np.repeat([0, 1], n)
+    surface = np.empty((F, 2 * n, 3))
+    points = np.empty((F, 2 * n, 3))
+    extra = 25.0
+    for t in range(F):
+        # frame 0 is the rest frame
+        Rt = Rotation.from_rotvec(rng.normal(size=3) * 0.4 * (t > 0)).as_matrix()
+        tt = rng.normal(size=3) * 0.1 * (t > 0)
+        surface[t] = rest @ Rt.T + tt
+        points[t, :n] = surface[t, :n]
+        # the second limb turned about its own axis (through its centre) before the motion
+        c = cyl_y.mean(0)
+        tw = Rotation.from_rotvec(np.radians(extra if t else 0.0) * np.array([0, 1, 0]))
+        points[t, n:] = (tw.apply(cyl_y - c) + c) @ Rt.T + tt
+    errs = bone_errors(rest, points, 0, surface, labels, max_offset=1e-6, min_points=10)
+    ang0, tw0 = errs[0]
+    ang1, tw1 = errs[1]
+    np.testing.assert_allclose(ang0, 0.0, atol=1e-4)
+    np.testing.assert_allclose(ang1[1:], extra, atol=1e-4)
+    # the axis is the samples' principal direction, a little off the cylinder's own
+    np.testing.assert_allclose(np.abs(tw1[1:]), extra, atol=0.1)
+
+
+def _chain(F: int, seed: int):
+    """A three-bone chain (a torso block, an upper arm and a forearm along x) moving with
+    random swings and random rolls of each limb about its own axis; returns rest points,
+    labels, joints, parents and the fitted-like transforms (rolls included)."""
+    from pointrig.kinematics import joint_trajectories  # noqa: F401
+
+    rng = np.random.default_rng(seed)
+    torso = rng.uniform([-0.2, -0.3, -0.1], [0.0, 0.3, 0.1], (300, 3))
+    u = rng.uniform(0, 2 * np.pi, 400)
+    upper = np.c_[rng.uniform(0.0, 0.3, 400), 0.04 * np.cos(u), 0.04 * np.sin(u)]
+    fore = upper + [0.3, 0.0, 0.0]
+    rest = np.vstack([torso, upper, fore])
+    labels = np.repeat([0, 1, 2], [300, 400, 400])
+    joints = np.array([[-0.1, 0.0, 0.0], [0.0, 0.0, 0.0], [0.3, 0.0, 0.0]])
+    parent = np.array([-1, 0, 1])
+    R = np.empty((F, 3, 3, 3))
+    T = np.empty((F, 3, 3))
+    x = np.array([1.0, 0.0, 0.0])
+    for t in range(F):
+        R[t, 0] = Rotation.from_rotvec(rng.normal(size=3) * 0.3).as_matrix()
+        T[t, 0] = rng.normal(size=3) * 0.1
+        for b in (1, 2):
+            p = parent[b]
+            swing = Rotation.from_rotvec(np.r_[0.0, rng.normal(size=2) * 0.6]).as_matrix()
+            roll = Rotation.from_rotvec(rng.uniform(-2, 2) * x).as_matrix()
+            R[t, b] = R[t, p] @ swing @ roll
+            c = joints[b]  # head joint shared with the parent
+            T[t, b] = R[t, p] @ c + T[t, p] - R[t, b] @ c
+    return rest, labels, joints, parent, R, T
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_minimal_twist_keeps_the_joints_and_removes_the_roll(seed: int) -> None:
+    """Oracle: the joint trajectories are unchanged (to rounding), each limb's relative
+    rotation to its parent has no twist about its axis left, and its axis points where the
+    fit put it; the root keeps its transform."""
+    from pointrig.kinematics import joint_trajectories, minimal_twist
+
+    rest, labels, joints, parent, R, T = _chain(12, seed)
+    R2, T2 = minimal_twist(R, T, joints, parent, rest, labels, min_elongation=2.0)
+    np.testing.assert_allclose(joint_trajectories(joints, R2, T2, parent),
+                               joint_trajectories(joints, R, T, parent), atol=1e-12)
+    np.testing.assert_allclose(R2[:, 0], R[:, 0])
+    np.testing.assert_allclose(T2[:, 0], T[:, 0])
+    # the upper arm's axis runs to the elbow; the forearm (a leaf) to its points' centroid
+    lead = rest[labels == 2].mean(0) - joints[2]
+    for b, axis in ((1, joints[2] - joints[1]), (2, lead / np.linalg.norm(lead))):
+        np.testing.assert_allclose(np.einsum("fij,j->fi", R2[:, b], axis),
+                                   np.einsum("fij,j->fi", R[:, b], axis), atol=1e-12)
+        for t in range(len(R)):
+            rel = R2[t, parent[b]].T @ R2[t, b]
+            assert abs(swing_twist(rel, axis)[1]) < 1e-9
+            np.testing.assert_allclose(rel @ rel.T, np.eye(3), atol=1e-12)
+    # the forearm (a leaf) also carries its own points' centroid to the same place
+    c = rest[labels == 2].mean(0)
+    np.testing.assert_allclose(np.einsum("fij,j->fi", R2[:, 2], c) + T2[:, 2],
+                               np.einsum("fij,j->fi", R[:, 2], c) + T[:, 2], atol=1e-9)
+
+
+def test_minimal_twist_leaves_compact_bones_alone() -> None:
+    """A bone whose points are not elongated along its axis (spread ratio below the gate)
+    keeps its fitted roll: its shape, not the view, decides its twist."""
+    from pointrig.kinematics import minimal_twist
+
+    rest, labels, joints, parent, R, T = _chain(5, 2)
+    R2, T2 = minimal_twist(R, T, joints, parent, rest, labels, min_elongation=50.0)
+    np.testing.assert_array_equal(R2, R)
+    np.testing.assert_array_equal(T2, T)
