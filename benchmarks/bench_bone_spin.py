@@ -90,7 +90,7 @@ def main(argv: list[str]) -> int:
             for i, cfg in enumerate(cfgs):
                 res = extract(seq, cfg, tmp, pictures=False)
                 rep = score_joints(res.skeleton.joint_positions, syn)
-                turn = frame_turn(res.joints.R)
+                turn = frame_turn(res.skeleton.bone_rotations)  # the output bones
                 rows[i].append((rep.recall, rep.precision, 100 * rep.raw_error,
                                 100 * rep.normalized_error, float(np.median(turn)),
                                 float(turn.max())))

@@ -43,7 +43,7 @@ def variants(cfg: PipelineConfig) -> dict[str, PipelineConfig]:
     paper = dataclasses.replace(j, mode="paper", gmm_density_normalize=False,
                                 weight_candidates="all", prior_from_weights=False,
                                 joint_tolerance=0.0, update_weights=True, zeta_scale=1.0,
-                                tau_init_relative=False, init="structure")
+                                tau_init_relative=False, init="structure", bone_twist="fit")
     prev = dataclasses.replace(j, update_weights=True, zeta_scale=1.0, joint_prior=0.01,
                                tau_init_relative=False, init="structure")
     return {

@@ -126,6 +126,16 @@ def add_set_option(ap: argparse.ArgumentParser) -> None:
                          "the single limbs")
 
 
+def add_variant_options(ap: argparse.ArgumentParser) -> None:
+    """Add the options of a benchmark that runs pipeline variants on a sequence set: the
+    positional JSON ``variants`` (default ``{}``), ``--frames``, ``--set``
+    (:func:`add_set_option`) and ``--only``."""
+    ap.add_argument("variants", nargs="*", default=["{}"], help="JSON overrides per variant")
+    ap.add_argument("--frames", type=int, default=100)
+    add_set_option(ap)
+    ap.add_argument("--only", default="", help="comma-separated sequence names")
+
+
 def selected(ap: argparse.ArgumentParser, only_arg: str,
              sequences: dict[str, tuple[str, dict]] = SEQUENCES) -> set[str]:
     """The names of ``--only`` (comma-separated; empty = all) among ``sequences``, or

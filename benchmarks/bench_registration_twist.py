@@ -37,7 +37,7 @@ from scipy.spatial import cKDTree
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_refine import add_set_option, chosen, suite  # noqa: E402
+from bench_refine import add_variant_options, chosen, suite  # noqa: E402
 
 from pointrig.config import apply_overrides  # noqa: E402
 from pointrig.joints import posed_rest_points  # noqa: E402
@@ -95,10 +95,7 @@ def bone_errors(rest_points: np.ndarray, points: np.ndarray, rest_frame: int,
 
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("variants", nargs="*", default=["{}"], help="JSON overrides per variant")
-    ap.add_argument("--frames", type=int, default=100)
-    add_set_option(ap)
-    ap.add_argument("--only", default="", help="comma-separated sequence names")
+    add_variant_options(ap)
     ap.add_argument("--max-offset", type=float, default=0.02, help="metres")
     ap.add_argument("--min-points", type=int, default=20)
     a = ap.parse_args(argv)

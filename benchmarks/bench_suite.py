@@ -43,7 +43,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_refine import _jittered, add_set_option, chosen, suite  # noqa: E402
+from bench_refine import _jittered, add_variant_options, chosen, suite  # noqa: E402
 from bench_registration_downstream import score_joints  # noqa: E402
 from compare_runs import common_means, run_from_reports  # noqa: E402
 
@@ -57,10 +57,7 @@ _CAP_KEY = "max_joints_from"
 
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("variants", nargs="*", default=["{}"], help="JSON overrides per variant")
-    ap.add_argument("--frames", type=int, default=100)
-    add_set_option(ap)
-    ap.add_argument("--only", default="", help="comma-separated sequence names")
+    add_variant_options(ap)
     ap.add_argument("--repeats", type=int, default=1)
     ap.add_argument("--json", type=Path, default=None, help="write every run's report here")
     a = ap.parse_args(argv)

@@ -151,3 +151,21 @@ def test_minimal_twist_leaves_compact_bones_alone() -> None:
     R2, T2 = minimal_twist(R, T, joints, parent, rest, labels, min_elongation=50.0)
     np.testing.assert_array_equal(R2, R)
     np.testing.assert_array_equal(T2, T)
+
+
+def test_minimal_twist_roll_gate() -> None:
+    """``min_roll_deg``: limbs whose fitted roll against the parent stays below the gate at the
+    90th percentile keep it; above it they lose it, as with no gate. The chain's rolls are
+    uniform in +-2 rad, so their 90th percentile is about 103 deg (oracle: computed here)."""
+    from pointrig.kinematics import minimal_twist
+
+    rest, labels, joints, parent, R, T = _chain(40, 4)
+    x = np.array([1.0, 0.0, 0.0])
+    p90 = max(np.percentile([abs(np.degrees(swing_twist(R[t, 0].T @ R[t, 1], x)[1]))
+                             for t in range(40)], 90), 1.0)
+    R_hi, T_hi = minimal_twist(R, T, joints, parent, rest, labels, min_roll_deg=179.9)
+    np.testing.assert_array_equal(R_hi[:, 1], R[:, 1])
+    R_lo, _ = minimal_twist(R, T, joints, parent, rest, labels, min_roll_deg=0.5 * p90)
+    R_all, _ = minimal_twist(R, T, joints, parent, rest, labels)
+    np.testing.assert_allclose(R_lo, R_all, atol=1e-12)
+    assert np.abs(R_lo[:, 1] - R[:, 1]).max() > 0.1

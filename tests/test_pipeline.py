@@ -225,23 +225,34 @@ def test_max_joints_caps_the_skeleton_and_is_recorded(demo_run, tmp_path, capsys
     assert len(err.strip().splitlines()) == 1 and not bad.exists()
 
 
-def test_minimal_bone_twist_changes_rolls_only(demo_run, tmp_path):
-    """``[joints] bone_twist = "minimal"`` (docs/joints.md "Session 45") turns limbs about
-    their own axes only: every joint trajectory equals the default run's (the oracle), some
-    bone's rotations differ, and the choice is recorded."""
-    cfg = tmp_path / "twist.toml"
-    cfg.write_text('[joints]\nbone_twist = "minimal"\n')
-    out = tmp_path / "out"
-    out.mkdir()
-    shutil.copy(demo_run / "registration.npz", out / "registration.npz")
-    assert main(["extract", str(demo_path() / "frames"), "-o", str(out), "-q",
-                 "--no-pictures", "--config", str(cfg)]) == 0
-    doc = json.loads((out / "skeleton.json").read_text())
-    assert doc["params"]["joints"]["bone_twist"] == "minimal"
-    base = load_skeleton_json(demo_run / "skeleton.json")
-    got = load_skeleton_json(out / "skeleton.json")
-    np.testing.assert_allclose(got.joint_positions, base.joint_positions, atol=1e-6)
-    with np.load(demo_run / "weights.npz") as a, np.load(out / "weights.npz") as b:
+def test_bone_twist_changes_rolls_only(demo_run, tmp_path):
+    """``[joints] bone_twist`` (docs/joints.md "Session 45") turns limbs about their own axes
+    only: the default ("minimal", roll gate 60 deg) and "fit" and "minimal" without the gate
+    give the same joint trajectories (the oracle: the fitted run), the ungated run's bone
+    rotations differ from the fitted ones, and each choice is recorded."""
+    runs = {}
+    for name, text in (("fit", '[joints]\nbone_twist = "fit"\n'),
+                       ("all", '[joints]\ntwist_min_roll_deg = 0.0\n')):
+        cfg = tmp_path / f"{name}.toml"
+        cfg.write_text(text)
+        out = tmp_path / name
+        out.mkdir()
+        shutil.copy(demo_run / "registration.npz", out / "registration.npz")
+        assert main(["extract", str(demo_path() / "frames"), "-o", str(out), "-q",
+                     "--no-pictures", "--config", str(cfg)]) == 0
+        runs[name] = out
+    runs["default"] = demo_run
+    joints = {k: json.loads((v / "skeleton.json").read_text())["params"]["joints"]
+              for k, v in runs.items()}
+    assert joints["default"]["bone_twist"] == "minimal"
+    assert joints["default"]["twist_min_roll_deg"] == 60.0
+    assert joints["fit"]["bone_twist"] == "fit"
+    assert joints["all"]["twist_min_roll_deg"] == 0.0
+    fit = load_skeleton_json(runs["fit"] / "skeleton.json")
+    for k in ("default", "all"):
+        got = load_skeleton_json(runs[k] / "skeleton.json")
+        np.testing.assert_allclose(got.joint_positions, fit.joint_positions, atol=1e-6)
+    with np.load(runs["fit"] / "weights.npz") as a, np.load(runs["all"] / "weights.npz") as b:
         R0, R1 = a["bone_rotations"], b["bone_rotations"]
     turn = np.einsum("fbji,fbjk->fbik", R0, R1)
     angle = np.degrees(np.arccos(np.clip((np.trace(turn, axis1=2, axis2=3) - 1) / 2, -1, 1)))

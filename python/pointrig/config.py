@@ -454,16 +454,20 @@ class JointsConfig:
     # output bones (our deviation, docs/joints.md "Session 45"): a round limb's roll about its
     # own axis is a near null mode of one-sided depth data, and the fitted limbs roll by tens
     # of degrees while the joints stay put. "minimal": each elongated non-root bone with one
-    # child (or none) gets its parent's rotation times the smallest turn that gives its axis
-    # the fitted direction (pointrig.kinematics.minimal_twist; joint trajectories unchanged);
-    # "fit": the rotations as fitted. A bone counts as a limb when its points' spread along
-    # the axis is at least twist_min_elongation x their largest spread across it. "fit" stays
-    # the default: 14 sequences, the output bones' p90 rotation error (bones' mean) 47.5 ->
-    # 44.4 deg, better on all 7 procedural figures (round limbs: human 58.6 -> 47.5) but worse
-    # on the glTF rigs whose shape fixes the roll (girl RunTrack 54.1 -> 57.9, rigged_figure
-    # 1.1 -> 1.6): benchmarks/bench_registration_twist.py
-    bone_twist: str = "fit"
+    # child (or none) whose fitted roll against its parent reaches twist_min_roll_deg at the
+    # 90th percentile over the frames (more than limbs roll; 0 = every such limb) gets its
+    # parent's rotation times the smallest turn that gives its axis the fitted direction
+    # (pointrig.kinematics.minimal_twist; joint trajectories unchanged exactly); "fit": the
+    # rotations as fitted. A bone counts as a limb when its points' spread along the axis is
+    # at least twist_min_elongation x their largest spread across it. Output bones' p90
+    # rotation error against the exact surface (bones' mean, benchmarks/
+    # bench_registration_twist.py): suite 47.5 -> 44.8 deg, validation 42.7 -> 41.4 deg;
+    # better on the round procedural limbs (human 58.6 -> 50.3), the glTF rigs unchanged but
+    # for girl RunTrack's lost legs (54.1 -> 56.0). With no roll gate (0): 44.4, but five of
+    # the seven glTF sequences of the suite worse (their shapes fix the roll)
+    bone_twist: str = "minimal"
     twist_min_elongation: float = 2.0
+    twist_min_roll_deg: float = 60.0
     # --- initial bone transforms (our deviation, docs/joints.md session 14) ---
     # "track": before the EM, step 2's skeleton is tracked through the observed frames, frame
     # by frame outwards from the rest frame (constant-velocity prediction, coarse-to-fine

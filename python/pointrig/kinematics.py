@@ -167,7 +167,8 @@ def _min_rotations(a: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 def minimal_twist(R: np.ndarray, T: np.ndarray, joints_rest: np.ndarray,
                   bone_parent: np.ndarray, rest_points: np.ndarray, labels: np.ndarray,
-                  min_elongation: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+                  min_elongation: float = 2.0, min_roll_deg: float = 0.0
+                  ) -> tuple[np.ndarray, np.ndarray]:
     """Bone transforms with no twist of a limb about its own axis beyond what it had at rest.
 
     A round limb's rotation about its own axis is a near null mode of a correspondence-free
@@ -197,6 +198,10 @@ def minimal_twist(R: np.ndarray, T: np.ndarray, joints_rest: np.ndarray,
         ``(M,)`` bone of each rest point.
     min_elongation
         Spread ratio (standard deviations) above which a bone counts as a limb.
+    min_roll_deg
+        Only bones whose fitted roll against their parent (about their axis) reaches this
+        many degrees at the 90th percentile over the frames are changed (0 = every limb): a
+        roll the shape fixes stays, a roll larger than limbs make is taken for the null mode.
 
     Returns
     -------
@@ -236,6 +241,15 @@ def minimal_twist(R: np.ndarray, T: np.ndarray, joints_rest: np.ndarray,
         w = np.linalg.eigvalsh(across.T @ across)[-1]  # largest spread across the axis
         if np.sqrt(along @ along) < min_elongation * np.sqrt(max(w, 0.0)):
             continue
+        if min_roll_deg > 0:
+            from scipy.spatial.transform import Rotation
+
+            rel = np.einsum("fji,fjk->fik", R[:, p], R[:, b])  # fitted, against the parent
+            q = Rotation.from_matrix(rel).as_quat()  # (F, 4) x, y, z, w
+            roll = 2.0 * np.arctan2(q[:, :3] @ a, q[:, 3])
+            roll = (roll + np.pi) % (2.0 * np.pi) - np.pi
+            if np.percentile(np.degrees(np.abs(roll)), 90) < min_roll_deg:
+                continue
         d = np.einsum("fij,j->fi", R[:, b], a)  # the fitted world direction of the axis
         v = np.einsum("fji,fj->fi", R2[:, p], d)  # ... in the parent's (corrected) rest frame
         v /= np.linalg.norm(v, axis=1, keepdims=True)

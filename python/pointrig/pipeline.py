@@ -236,7 +236,8 @@ def extract(
                                                  joints_rest, config.structure, st.view_camera)
     if stop_after == "joints" and config.joints.bone_twist == "minimal":
         R, T = minimal_twist(R, T, joints_rest, parent, reg.rest_points, labels,
-                             config.joints.twist_min_elongation)
+                             config.joints.twist_min_elongation,
+                             config.joints.twist_min_roll_deg)
     skel = build_skeleton(reg.rest_points, parent, joints_rest, R, T, weights, labels)
     result.skeleton = skel
 
