@@ -1,5 +1,5 @@
 """How far the registration turns each true bone, and how much of that error is twist about
-the bone's own axis (step 1, §4; docs/registration.md "Session 45").
+the bone's own axis (step 1, §4; docs/registration.md "Sessions 44-45").
 
 For each sequence the registration (step 1, and the refined registration of the whole
 pipeline) and the output skeleton's bones (the rest points carried rigidly by their bone) are
@@ -16,8 +16,8 @@ bones and the fraction of the squared error angle that is twist, then per varian
 the mean over the sequences of the bones' mean::
 
     PYTHONPATH=python python benchmarks/bench_registration_twist.py --only girl_run
-    PYTHONPATH=python python benchmarks/bench_registration_twist.py --only girl_run \\
-        '{}' '{"registration": {"normal_kappa": 0.0}}'
+    PYTHONPATH=python python benchmarks/bench_registration_twist.py \\
+        '{"joints": {"bone_twist": "fit"}}' '{}'            # the output rolls as fitted / default
 
 A registration that slides round a limb (a cylinder's rotation about its axis is nearly a null
 mode of a single-view GMM) shows a large twist with a small misfit: the template still lies on

@@ -34,8 +34,8 @@ def main(argv: list[str] | None = None) -> int:
         ["bench_refine.py", "--frames", frames],
         ["bench_joint_oracle.py", "--frames", frames],
         ["bench_bone_spin.py", "--frames", frames],
-        ["bench_registration_twist.py", "--frames", frames, "{}",
-         '{"joints": {"bone_twist": "minimal"}}'],
+        ["bench_registration_twist.py", "--frames", frames,
+         '{"joints": {"bone_twist": "fit"}}', "{}"],
     ]
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(

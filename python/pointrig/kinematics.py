@@ -138,12 +138,19 @@ def swing_twist(R: np.ndarray, axis: np.ndarray) -> tuple[np.ndarray, float]:
 
     a = np.asarray(axis, dtype=np.float64)
     a = a / np.linalg.norm(a)
-    x, y, z, w = Rotation.from_matrix(np.asarray(R, dtype=np.float64)).as_quat()
-    along = float(np.dot((x, y, z), a))
-    angle = 2.0 * float(np.arctan2(along, w))
-    angle = (angle + np.pi) % (2.0 * np.pi) - np.pi
+    angle = float(_twist_angles(np.asarray(R, dtype=np.float64)[None], a)[0])
     twist = Rotation.from_rotvec(angle * a).as_matrix()
     return np.asarray(R) @ twist.T, angle
+
+
+def _twist_angles(R: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """``(F,)`` twist angles (radians, in ``[-pi, pi]``) of the rotations ``R (F, 3, 3)`` about
+    the unit axis ``a (3,)``: twice the angle of the quaternion's part along ``a``."""
+    from scipy.spatial.transform import Rotation
+
+    q = Rotation.from_matrix(R).as_quat()  # (F, 4) x, y, z, w
+    angle = 2.0 * np.arctan2(q[:, :3] @ a, q[:, 3])
+    return (angle + np.pi) % (2.0 * np.pi) - np.pi
 
 
 def _min_rotations(a: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -172,7 +179,7 @@ def minimal_twist(R: np.ndarray, T: np.ndarray, joints_rest: np.ndarray,
     """Bone transforms with no twist of a limb about its own axis beyond what it had at rest.
 
     A round limb's rotation about its own axis is a near null mode of a correspondence-free
-    fit to one-sided depth data (docs/registration.md "Session 45"): the fitted bones roll by
+    fit to one-sided depth data (docs/registration.md "Sessions 44-45"): the fitted bones roll by
     tens of degrees (p90 60-120 deg on the arms of the procedural human) while every joint
     stays in place. This sets, for each non-root bone whose axis is defined and whose points
     are elongated along it, the rotation to its parent's (already corrected) rotation times
@@ -215,7 +222,6 @@ def minimal_twist(R: np.ndarray, T: np.ndarray, joints_rest: np.ndarray,
     rest_points = np.asarray(rest_points, dtype=np.float64)
     labels = np.asarray(labels, dtype=np.int64)
     R2, T2 = R.copy(), T.copy()
-    B = len(parent)
     order: list[int] = [int(b) for b in np.flatnonzero(parent < 0)]
     for b in order:  # breadth-first: parents first (the list grows while it is walked)
         order.extend(int(c) for c in np.flatnonzero(parent == b))
@@ -242,13 +248,8 @@ def minimal_twist(R: np.ndarray, T: np.ndarray, joints_rest: np.ndarray,
         if np.sqrt(along @ along) < min_elongation * np.sqrt(max(w, 0.0)):
             continue
         if min_roll_deg > 0:
-            from scipy.spatial.transform import Rotation
-
             rel = np.einsum("fji,fjk->fik", R[:, p], R[:, b])  # fitted, against the parent
-            q = Rotation.from_matrix(rel).as_quat()  # (F, 4) x, y, z, w
-            roll = 2.0 * np.arctan2(q[:, :3] @ a, q[:, 3])
-            roll = (roll + np.pi) % (2.0 * np.pi) - np.pi
-            if np.percentile(np.degrees(np.abs(roll)), 90) < min_roll_deg:
+            if np.percentile(np.degrees(np.abs(_twist_angles(rel, a))), 90) < min_roll_deg:
                 continue
         d = np.einsum("fij,j->fi", R[:, b], a)  # the fitted world direction of the axis
         v = np.einsum("fji,fj->fi", R2[:, p], d)  # ... in the parent's (corrected) rest frame
