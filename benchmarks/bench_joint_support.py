@@ -40,7 +40,8 @@ from bench_structure_real import _load  # noqa: E402
 
 from pointrig.config import PipelineConfig  # noqa: E402
 from pointrig.joints import learn_joints, subsample_frames  # noqa: E402
-from pointrig.pipeline import _tree_order, build_skeleton  # noqa: E402
+from pointrig.kinematics import tree_order  # noqa: E402
+from pointrig.pipeline import build_skeleton  # noqa: E402
 from pointrig.structure import extract_structure, fit_bones  # noqa: E402
 
 
@@ -134,7 +135,7 @@ def main(argv: list[str]) -> int:
         jr = learn_joints(frames, Q, Y, st, cfg.joints)
         sk = build_skeleton(Q, st.bone_parent, jr.joints_rest, jr.R, jr.T, jr.weights, None)
         rep = score_joints(sk.joint_positions, syn)
-        order = _tree_order(st.bone_parent)
+        order = tree_order(st.bone_parent)
         matched = {int(order[row.matched]) for row in rep.rows if row.matched >= 0}
         size = rep.subject_size
         rest = int(np.argmin(((Y - Q[None]) ** 2).sum(axis=(1, 2))))

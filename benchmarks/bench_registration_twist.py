@@ -10,7 +10,7 @@ per frame ``t``, the rotation error is ``E = R_reg R_true^T``, with ``R_reg`` th
 rotation of the registered points from the rest frame to frame ``t`` and ``R_true`` that of
 their surface samples. ``E`` is split into a swing and a twist about the bone's axis in frame
 ``t`` (the first principal direction of its surface samples,
-:func:`pointrig.kinematics.swing_twist`). Prints per bone the 90th percentile over the frames
+:func:`pointrig.kinematics.twist_angles`). Prints per bone the 90th percentile over the frames
 of the whole error angle and of the twist (degrees), per sequence the median and mean over the
 bones and the fraction of the squared error angle that is twist, then per variant and stage
 the mean over the sequences of the bones' mean::
@@ -41,8 +41,8 @@ from bench_refine import add_variant_options, chosen, suite  # noqa: E402
 
 from pointrig.config import apply_overrides  # noqa: E402
 from pointrig.joints import posed_rest_points  # noqa: E402
-from pointrig._core import kabsch  # noqa: E402
-from pointrig.kinematics import swing_twist  # noqa: E402
+from pointrig._core import cluster_fit  # noqa: E402
+from pointrig.kinematics import twist_angles  # noqa: E402
 from pointrig.pipeline import extract  # noqa: E402
 
 
@@ -72,24 +72,20 @@ def bone_errors(rest_points: np.ndarray, points: np.ndarray, rest_frame: int,
     """
     d, s = cKDTree(surface[rest_frame]).query(rest_points)
     ok = d < max_offset
-    lab = surface_labels[s]
+    lab = surface_labels[s][ok]
+    Y = np.ascontiguousarray(points[:, ok], dtype=np.float64)
+    S = np.ascontiguousarray(surface[:, s[ok]], dtype=np.float64)
+    n_lab = int(lab.max()) + 1 if len(lab) else 0
+    # per bone and frame, the Kabsch rotation from the rest frame (Eq. 14 in Rust)
+    R_reg, _, counts = cluster_fit(Y[rest_frame], Y, lab, n_lab)
+    R_true, _, _ = cluster_fit(S[rest_frame], S, lab, n_lab)
     out: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-    for b in np.unique(lab[ok]):
-        sel = ok & (lab == b)
-        if sel.sum() < min_points:
-            continue
-        Y, S = points[:, sel], surface[:, s[sel]]
-        F = len(Y)
-        ang, tw = np.zeros(F), np.zeros(F)
-        for t in range(F):
-            R_reg, _ = kabsch(np.ascontiguousarray(Y[rest_frame]), np.ascontiguousarray(Y[t]))
-            R_true, _ = kabsch(np.ascontiguousarray(S[rest_frame]), np.ascontiguousarray(S[t]))
-            E = R_reg @ R_true.T
-            c = S[t] - S[t].mean(0)
-            axis = np.linalg.eigh(c.T @ c)[1][:, -1]
-            ang[t] = np.degrees(np.arccos(np.clip((np.trace(E) - 1) / 2, -1, 1)))
-            tw[t] = np.degrees(swing_twist(E, axis)[1])
-        out[int(b)] = (ang, tw)
+    for b in np.flatnonzero(counts >= min_points):
+        E = np.einsum("fij,fkj->fik", R_reg[:, b], R_true[:, b])  # R_reg R_true^T
+        c = S[:, lab == b] - S[:, lab == b].mean(1, keepdims=True)
+        axis = np.linalg.eigh(np.einsum("fni,fnj->fij", c, c))[1][:, :, -1]  # (F, 3)
+        ang = np.degrees(np.arccos(np.clip((np.trace(E, axis1=1, axis2=2) - 1) / 2, -1, 1)))
+        out[int(b)] = (ang, np.degrees(twist_angles(E, axis)))
     return out
 
 

@@ -16,7 +16,10 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["skin", "solve_joint_positions", "joint_trajectories", "swing_twist", "minimal_twist"]
+__all__ = [
+    "skin", "solve_joint_positions", "joint_trajectories", "swing_twist", "twist_angles",
+    "minimal_twist", "tree_order",
+]
 
 
 def skin(rest_points: np.ndarray, weights: np.ndarray, R: np.ndarray, T: np.ndarray) -> np.ndarray:
@@ -138,18 +141,30 @@ def swing_twist(R: np.ndarray, axis: np.ndarray) -> tuple[np.ndarray, float]:
 
     a = np.asarray(axis, dtype=np.float64)
     a = a / np.linalg.norm(a)
-    angle = float(_twist_angles(np.asarray(R, dtype=np.float64)[None], a)[0])
+    angle = float(twist_angles(np.asarray(R, dtype=np.float64)[None], a)[0])
     twist = Rotation.from_rotvec(angle * a).as_matrix()
     return np.asarray(R) @ twist.T, angle
 
 
-def _twist_angles(R: np.ndarray, a: np.ndarray) -> np.ndarray:
-    """``(F,)`` twist angles (radians, in ``[-pi, pi]``) of the rotations ``R (F, 3, 3)`` about
-    the unit axis ``a (3,)``: twice the angle of the quaternion's part along ``a``."""
+def twist_angles(R: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """Twist angles of many rotations about unit axes (:func:`swing_twist`'s angle).
+
+    Parameters
+    ----------
+    R
+        ``(F, 3, 3)`` rotation matrices.
+    axis
+        ``(3,)`` one unit axis for all, or ``(F, 3)`` one per rotation.
+
+    Returns
+    -------
+    ``(F,)`` radians in ``[-pi, pi]``: twice the angle of the quaternion's part along the axis.
+    """
     from scipy.spatial.transform import Rotation
 
     q = Rotation.from_matrix(R).as_quat()  # (F, 4) x, y, z, w
-    angle = 2.0 * np.arctan2(q[:, :3] @ a, q[:, 3])
+    along = np.einsum("fi,fi->f", q[:, :3], np.broadcast_to(axis, q[:, :3].shape))
+    angle = 2.0 * np.arctan2(along, q[:, 3])
     return (angle + np.pi) % (2.0 * np.pi) - np.pi
 
 
@@ -222,23 +237,16 @@ def minimal_twist(R: np.ndarray, T: np.ndarray, joints_rest: np.ndarray,
     rest_points = np.asarray(rest_points, dtype=np.float64)
     labels = np.asarray(labels, dtype=np.int64)
     R2, T2 = R.copy(), T.copy()
-    order: list[int] = [int(b) for b in np.flatnonzero(parent < 0)]
-    for b in order:  # breadth-first: parents first (the list grows while it is walked)
-        order.extend(int(c) for c in np.flatnonzero(parent == b))
-    for b in order:
+    for b in tree_order(parent):  # parents first: each child uses its parent's new rotation
+        b = int(b)
         p = int(parent[b])
-        if p < 0:
-            continue
         kids = np.flatnonzero(parent == b)
         pts = rest_points[labels == b]
-        if len(kids) == 1:
-            a = joints_rest[kids[0]] - joints_rest[b]
-        elif len(kids) == 0 and len(pts) >= 3:
-            a = pts.mean(0) - joints_rest[b]
-        else:
+        if p < 0 or len(kids) > 1 or len(pts) < 3:
             continue
+        a = (joints_rest[kids[0]] if len(kids) else pts.mean(0)) - joints_rest[b]
         n = float(np.linalg.norm(a))
-        if len(pts) < 3 or n <= 1e-9:
+        if n <= 1e-9:
             continue
         a = a / n
         X = pts - pts.mean(0)
@@ -249,7 +257,7 @@ def minimal_twist(R: np.ndarray, T: np.ndarray, joints_rest: np.ndarray,
             continue
         if min_roll_deg > 0:
             rel = np.einsum("fji,fjk->fik", R[:, p], R[:, b])  # fitted, against the parent
-            if np.percentile(np.degrees(np.abs(_twist_angles(rel, a))), 90) < min_roll_deg:
+            if np.percentile(np.degrees(np.abs(twist_angles(rel, a))), 90) < min_roll_deg:
                 continue
         d = np.einsum("fij,j->fi", R[:, b], a)  # the fitted world direction of the axis
         v = np.einsum("fji,fj->fi", R2[:, p], d)  # ... in the parent's (corrected) rest frame
@@ -259,3 +267,17 @@ def minimal_twist(R: np.ndarray, T: np.ndarray, joints_rest: np.ndarray,
         T2[:, b] = np.einsum("fij,j->fi", R[:, b], c) + T[:, b] - np.einsum("fij,j->fi", Rn, c)
         R2[:, b] = Rn
     return R2, T2
+
+
+def tree_order(bone_parent: np.ndarray) -> np.ndarray:
+    """Bone indices in breadth-first order from the root (parents before children)."""
+    bone_parent = np.asarray(bone_parent)
+    roots = [int(b) for b in np.flatnonzero(bone_parent < 0)]
+    order: list[int] = []
+    queue = list(roots)
+    while queue:
+        b = queue.pop(0)
+        order.append(b)
+        queue.extend(int(c) for c in np.flatnonzero(bone_parent == b))
+    missing = [b for b in range(len(bone_parent)) if b not in order]
+    return np.array(order + missing, dtype=np.int64)

@@ -26,7 +26,7 @@ import numpy as np
 
 from .config import PipelineConfig
 from .export import write_bvh, write_gltf
-from .kinematics import joint_trajectories, minimal_twist
+from .kinematics import joint_trajectories, minimal_twist, tree_order
 from .preprocess import remove_sparse_frames
 from .sequence import PointSequence, check_units
 from .skeleton import Skeleton
@@ -59,20 +59,6 @@ class ExtractResult:
     sparse_removed: np.ndarray | None = None
 
 
-def _tree_order(bone_parent: np.ndarray) -> np.ndarray:
-    """Bone indices in breadth-first order from the root (parents before children)."""
-    bone_parent = np.asarray(bone_parent)
-    roots = [int(b) for b in np.flatnonzero(bone_parent < 0)]
-    order: list[int] = []
-    queue = list(roots)
-    while queue:
-        b = queue.pop(0)
-        order.append(b)
-        queue.extend(int(c) for c in np.flatnonzero(bone_parent == b))
-    missing = [b for b in range(len(bone_parent)) if b not in order]
-    return np.array(order + missing, dtype=np.int64)
-
-
 def build_skeleton(rest_points: np.ndarray, bone_parent: np.ndarray, joints_rest: np.ndarray,
                    R: np.ndarray, T: np.ndarray, weights: np.ndarray | None,
                    labels: np.ndarray | None) -> Skeleton:
@@ -81,7 +67,7 @@ def build_skeleton(rest_points: np.ndarray, bone_parent: np.ndarray, joints_rest
     Joint ``b`` is the head of bone ``b`` (see :mod:`pointrig.kinematics`); skeleton bones
     are the segments parent joint -> child joint.
     """
-    order = _tree_order(bone_parent)
+    order = tree_order(bone_parent)
     inv = np.empty_like(order)
     inv[order] = np.arange(len(order))
     parents = np.array([inv[bone_parent[b]] if bone_parent[b] >= 0 else -1 for b in order])
