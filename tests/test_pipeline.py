@@ -257,3 +257,28 @@ def test_bone_twist_changes_rolls_only(demo_run, tmp_path):
     turn = np.einsum("fbji,fbjk->fbik", R0, R1)
     angle = np.degrees(np.arccos(np.clip((np.trace(turn, axis1=2, axis2=3) - 1) / 2, -1, 1)))
     assert angle.max() > 5.0
+
+
+def test_joint_depth_moves_rest_joints_along_camera_rays_only(demo_run, tmp_path):
+    """``[joints] joint_depth`` (docs/joints.md "Session 47") moves each output joint along its
+    rest-frame camera ray (the demo's camera is the origin) and changes nothing else of the
+    tree; "off" keeps step 3's joints, and the choice is recorded."""
+    cfg = tmp_path / "off.toml"
+    cfg.write_text('[joints]\njoint_depth = "off"\n')
+    out = tmp_path / "off"
+    out.mkdir()
+    shutil.copy(demo_run / "registration.npz", out / "registration.npz")
+    assert main(["extract", str(demo_path() / "frames"), "-o", str(out), "-q",
+                 "--no-pictures", "--config", str(cfg)]) == 0
+    on = load_skeleton_json(demo_run / "skeleton.json")
+    off = load_skeleton_json(out / "skeleton.json")
+    np.testing.assert_array_equal(on.parents, off.parents)
+    moved = on.rest_positions - off.rest_positions
+    ray = off.rest_positions / np.linalg.norm(off.rest_positions, axis=1, keepdims=True)
+    along = np.sum(moved * ray, axis=1)
+    np.testing.assert_allclose(moved, along[:, None] * ray, atol=1e-9)
+    assert np.abs(along).max() > 1e-3  # some joint moved
+    doc_on = json.loads((demo_run / "skeleton.json").read_text())["params"]["joints"]
+    doc_off = json.loads((out / "skeleton.json").read_text())["params"]["joints"]
+    assert doc_on["joint_depth"] == "chord" and doc_on["depth_points"] == "consensus"
+    assert doc_off["joint_depth"] == "off"

@@ -11,10 +11,13 @@ from pointrig.config import StructureConfig
 from pointrig.structure import StructureResult, extract_structure
 from pointrig.view import (
     SINGLE_VIEW_MAX_TWO_LAYER,
+    chord_depth_offset,
+    chord_half_width,
     in_view,
     is_single_view,
     two_layer_fraction,
     view_depth_correct,
+    view_depth_joints,
 )
 
 
@@ -216,3 +219,109 @@ def test_structure_rejects_bad_view_parameters():
                 {"view_depth_quantile": 0.4}):
         with pytest.raises(ConfigError):
             extract_structure(q, Y, StructureConfig(**bad))
+
+
+# ---------------------------------------------------------------- the chord rule (session 47)
+
+
+def _ray_cast_cylinder(depth: float, radius: float, x_range: tuple[float, float],
+                       pixel: float = 1.0 / 525) -> np.ndarray:
+    """What a pinhole depth camera at the origin looking along +z sees of a cylinder along x
+    whose axis crosses (0, 0, depth): one point per pixel (``pixel`` in tangent units) on the
+    near surface, the exact ray-cylinder intersection."""
+    u = np.arange(-0.5, 0.5, pixel)
+    U, V = np.meshgrid(u, u)
+    U, V = U.ravel(), V.ravel()
+    # ray t (U, V, 1): (V t)^2 + (t - depth)^2 = radius^2, nearest root
+    a, b, c = V ** 2 + 1.0, -2.0 * depth, depth ** 2 - radius ** 2
+    disc = b ** 2 - 4 * a * c
+    hit = disc >= 0
+    t = (-b - np.sqrt(np.where(hit, disc, 0.0))) / (2 * a)
+    P = np.stack([U * t, V * t, t], 1)[hit]
+    return P[(P[:, 0] >= x_range[0]) & (P[:, 0] <= x_range[1])]
+
+
+def test_chord_half_width_of_a_sampled_rectangle_is_half_its_short_side():
+    g = np.arange(0.0, 1.0, 0.005)
+    X, Y = np.meshgrid(g * 2.0, g * 0.4)
+    uv = np.stack([X.ravel(), Y.ravel()], 1)
+    half = chord_half_width(uv, np.array([1.0, 0.2]), band=0.01, gap=0.02)
+    assert half == pytest.approx(0.2, abs=0.01)
+    # off the rectangle (in a gap wider than ``gap``) there is no chord
+    assert chord_half_width(uv, np.array([1.0, 0.6]), band=0.01, gap=0.02) == np.inf
+    # a second rectangle beyond a gap does not join the chord
+    uv2 = np.concatenate([uv, uv + [0.0, 0.5]])
+    assert chord_half_width(uv2, np.array([1.0, 0.2]), band=0.01, gap=0.02) == pytest.approx(
+        0.2, abs=0.01)
+
+
+@pytest.mark.parametrize("start", ["front", "axis", "behind"])
+def test_chord_depth_offset_finds_a_ray_cast_cylinders_axis(start):
+    depth, r = 2.0, 0.08
+    P = _ray_cast_cylinder(depth, r, (-0.3, 0.3))
+    joint = {"front": np.array([0.05, 0.0, depth - r]), "axis": np.array([0.05, 0.0, depth]),
+             "behind": np.array([0.05, 0.0, depth + 0.1])}[start]
+    off = chord_depth_offset(P, joint, np.zeros(3), np.array([0.0, 0.0, 1.0]), radius=0.02,
+                             band=4.5 / 525, gap=6.0 / 525)
+    u = joint / np.linalg.norm(joint)
+    moved = joint + off * u
+    # the axis point on the joint's ray: closest approach of the ray to the axis
+    assert moved[2] == pytest.approx(depth, abs=0.1 * r)
+    # nothing near the joint's pixel: undefined
+    assert np.isnan(chord_depth_offset(P, np.array([0.0, 0.5, 2.0]), np.zeros(3),
+                                       np.array([0.0, 0.0, 1.0]), 0.02, 4.5 / 525, 6.0 / 525))
+
+
+@pytest.mark.parametrize("points", ["consensus", "all", "adjacent", "child"])
+def test_view_depth_joints_moves_surface_joints_of_a_two_bone_limb_to_its_axis(points):
+    depth, r = 2.0, 0.06
+    rest = _ray_cast_cylinder(depth, r, (-0.4, 0.4))
+    labels = (rest[:, 0] > 0).astype(np.int64)  # bone 0 (root) x < 0, bone 1 x > 0
+    parent = np.array([-1, 0])
+    # on the near surface; joint 1 a little inside its bone, as "child" reads only that bone
+    # (at the bone's very end the chord can cut the corner)
+    joints = np.array([[-0.2, 0.0, depth - r], [0.05, 0.0, depth - r]])
+    F = 4
+    R = np.tile(np.eye(3), (F, 2, 1, 1))
+    T = np.zeros((F, 2, 3))
+    frames = [rest.copy() for _ in range(F)]
+    registered = np.repeat(rest[None], F, axis=0)
+    out, shift = view_depth_joints(frames, registered, labels, parent, joints, R, T,
+                                   np.zeros(3), n_frames=3, points=points)
+    assert out[:, 2] == pytest.approx([depth, depth], abs=0.1 * r)
+    np.testing.assert_allclose(shift, np.linalg.norm(out - joints, axis=1), atol=1e-12)
+    # "back" never moves a joint towards the camera
+    deep = joints + [0.0, 0.0, 2 * r]
+    out_b, shift_b = view_depth_joints(frames, registered, labels, parent, deep, R, T,
+                                       np.zeros(3), points=points, direction="back")
+    assert np.all(shift_b == 0.0)
+    np.testing.assert_array_equal(out_b, deep)
+
+
+def test_view_depth_joints_consensus_ignores_an_occluder_that_misleads_the_whole_view():
+    depth, r = 2.0, 0.06
+    pixel = 1.0 / 525
+    limb = _ray_cast_cylinder(depth, r, (-0.4, 0.4), pixel)
+    # a bar across the view at 1.6 m, in front of joint 1: the camera sees the bar there
+    u = np.arange(-0.5, 0.5, pixel)
+    U, V = np.meshgrid(u, u)
+    bar = np.stack([U.ravel() * 1.6, V.ravel() * 1.6, np.full(U.size, 1.6)], 1)
+    bar = bar[(bar[:, 0] > 0.03) & (bar[:, 0] < 0.07) & (np.abs(bar[:, 1]) < 0.3)]
+    hidden = (limb[:, 0] / limb[:, 2] > 0.03 / 1.6) & (limb[:, 0] / limb[:, 2] < 0.07 / 1.6)
+    frame = np.concatenate([limb[~hidden], bar])
+    rest = np.concatenate([limb, bar])
+    labels = np.concatenate([(limb[:, 0] > 0).astype(np.int64), np.full(len(bar), 2)])
+    parent = np.array([-1, 0, 0])
+    joints = np.array([[-0.2, 0.0, depth - r], [0.05, 0.0, depth - r], [0.05, 0.0, 1.6]])
+    F = 3
+    R = np.tile(np.eye(3), (F, 3, 1, 1))
+    T = np.zeros((F, 3, 3))
+    args = ([frame] * F, np.repeat(rest[None], F, axis=0), labels, parent, joints, R, T,
+            np.zeros(3))
+    _, shift_all = view_depth_joints(*args, points="all")
+    out, shift = view_depth_joints(*args, points="consensus")
+    assert shift_all[1] < -0.2  # the whole view puts joint 1 at the bar's depth
+    assert shift[1] == 0.0  # its own bones disagree: it stays
+    assert out[0, 2] == pytest.approx(depth, abs=0.1 * r)  # the visible joint still moves
+    with pytest.raises(ValueError, match="points"):
+        view_depth_joints(*args, points="nearest")

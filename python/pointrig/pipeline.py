@@ -30,6 +30,7 @@ from .kinematics import joint_trajectories, minimal_twist, tree_order
 from .preprocess import remove_sparse_frames
 from .sequence import PointSequence, check_units
 from .skeleton import Skeleton
+from .view import view_depth_joints
 
 __all__ = ["ExtractResult", "extract", "build_skeleton"]
 
@@ -220,6 +221,14 @@ def extract(
     # the output tree (a leaf root moves to the body's centre), then the skeleton
     parent, joints_rest = struct_mod.output_tree(reg.rest_points, labels, st.bone_parent,
                                                  joints_rest, config.structure, st.view_camera)
+    if (stop_after == "joints" and config.joints.joint_depth == "chord"
+            and st.view_camera is not None):
+        # output joints to their parts' axis depth (docs/joints.md "Session 47")
+        final = result.refined_registration or reg
+        joints_rest, _ = view_depth_joints(
+            seq.frames, final.points, labels, parent, joints_rest, R, T, st.view_camera,
+            n_frames=config.joints.depth_frames, points=config.joints.depth_points,
+            direction=config.joints.depth_direction)
     if stop_after == "joints" and config.joints.bone_twist == "minimal":
         R, T = minimal_twist(R, T, joints_rest, parent, reg.rest_points, labels,
                              config.joints.twist_min_elongation,

@@ -17,10 +17,15 @@ Units: metres. The camera position is in the input frame (the origin for camera-
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .kinematics import joint_trajectories
+
 __all__ = ["two_layer_fraction", "is_single_view", "in_view", "view_depth_correct",
+           "image_coordinates", "chord_half_width", "chord_depth_offset",
            "SINGLE_VIEW_MAX_TWO_LAYER"]
 
 #: Point sets with more than this fraction of two-layer camera rays are not one depth view
@@ -201,3 +206,260 @@ def view_depth_correct(points: np.ndarray, weights: np.ndarray | None, centre: n
     else:
         raise ValueError(f"view_depth_correct: unknown method {method!r}")
     return c + max(da - n, 0.0) * u
+
+
+def image_coordinates(points: np.ndarray, camera: np.ndarray, axis: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """Gnomonic image coordinates of ``points (n, 3)`` seen from ``camera (3,)`` looking along
+    the unit ``axis (3,)`` (metres): ``(uv (n, 2), depth (n,))``, ``uv`` in tangent units
+    (pixels / focal length) and ``depth`` along ``axis`` in metres. Points with ``depth <= 0``
+    get ``nan`` coordinates."""
+    a = np.asarray(axis, dtype=np.float64)
+    a = a / np.linalg.norm(a)
+    e1 = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(a, e1)
+    P = np.asarray(points, dtype=np.float64) - np.asarray(camera, dtype=np.float64)
+    z = P @ a
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uv = np.stack([P @ e1, P @ e2], 1) / np.where(z > 0, z, np.nan)[:, None]
+    return uv, z
+
+
+def chord_half_width(uv: np.ndarray, centre: np.ndarray, band: float, gap: float,
+                     n_directions: int = 12) -> float:
+    """Half the length of the shortest chord through ``centre`` of the silhouette of ``uv``.
+
+    For each of ``n_directions`` directions evenly spread over 180 deg, the points within
+    ``band`` of the line through ``centre`` are sorted along it; the chord is the run of them
+    around ``centre`` with no gap wider than ``gap``. Directions where ``centre`` falls in a gap
+    wider than ``gap`` (or past the run's ends) give no chord.
+
+    Parameters
+    ----------
+    uv
+        ``(n, 2)`` image coordinates of the part's points (any unit, e.g. tangent units).
+    centre
+        ``(2,)`` the query point, same unit.
+    band, gap
+        Half-width of the strip about each line and the largest gap inside a chord, same unit
+        (a few times the sampling spacing).
+    n_directions
+        Number of directions tried.
+
+    Returns
+    -------
+    float
+        The half-length, same unit; ``inf`` if no direction gives a chord.
+    """
+    chord = _shortest_chord(uv, centre, band, gap, n_directions)
+    return np.inf if chord is None else 0.5 * (chord[2] - chord[1])
+
+
+def _shortest_chord(uv: np.ndarray, centre: np.ndarray, band: float, gap: float,
+                    n_directions: int) -> tuple[np.ndarray, float, float] | None:
+    """The shortest chord of :func:`chord_half_width`: ``(direction (2,), a, b)`` with the
+    chord from ``centre + a direction`` to ``centre + b direction`` (``a < 0 < b`` up to the
+    sampling), or ``None``."""
+    rel = np.asarray(uv, dtype=np.float64) - np.asarray(centre, dtype=np.float64)
+    best: tuple[np.ndarray, float, float] | None = None
+    for th in np.linspace(0.0, np.pi, n_directions, endpoint=False):
+        d = np.array([np.cos(th), np.sin(th)])
+        s = np.sort(rel[np.abs(rel @ np.array([-d[1], d[0]])) < band] @ d)
+        if len(s) < 3:
+            continue
+        hi = int(np.searchsorted(s, 0.0))
+        lo = hi - 1
+        if lo < 0 or hi >= len(s) or s[hi] - s[lo] > gap:
+            continue
+        breaks = np.flatnonzero(np.diff(s) > gap)  # a chord ends at the first gap each way
+        left = breaks[breaks < lo]
+        right = breaks[breaks >= hi]
+        a = float(s[left[-1] + 1] if len(left) else s[0])
+        b = float(s[right[0]] if len(right) else s[-1])
+        if best is None or b - a < best[2] - best[1]:
+            best = (d, a, b)
+    return best
+
+
+def chord_depth_offset(points: np.ndarray, joint: np.ndarray, camera: np.ndarray,
+                       axis: np.ndarray, radius: float, band: float, gap: float,
+                       front_quantile: float = 0.2) -> float:
+    """How far behind ``joint`` the axis of its part lies along the camera ray, metres.
+
+    The part's axis depth is estimated as the depth of the front surface at the joint's pixel
+    (the ``front_quantile`` of the depths of ``points`` seen within ``radius`` metres of the
+    joint across the view) plus the half-width of the silhouette's shortest chord through that
+    pixel (:func:`chord_half_width`, scaled to metres at the front depth): a round limb is as
+    deep as it is wide. docs/joints.md ("Session 47") has the measurements.
+
+    Parameters
+    ----------
+    points
+        ``(n, 3)`` observed points of the part (e.g. the two bones meeting at the joint) in one
+        frame, metres.
+    joint
+        ``(3,)`` the joint in the same frame, metres.
+    camera, axis
+        ``(3,)`` camera position and unit viewing axis (:func:`image_coordinates`).
+    radius
+        Neighbourhood radius for the front depth, metres.
+    band, gap
+        Chord strip half-width and largest gap, tangent units (:func:`chord_half_width`).
+    front_quantile
+        Depth quantile of the neighbourhood taken as the front surface.
+
+    Returns
+    -------
+    float
+        ``d_axis - d_joint`` in metres along the ray (positive: the axis lies behind the joint);
+        ``nan`` if no point lies near the joint's pixel or no chord passes through it.
+    """
+    uv, z = image_coordinates(points, camera, axis)
+    juv, jz = image_coordinates(np.asarray(joint, dtype=np.float64)[None], camera, axis)
+    if not jz[0] > 0 or len(z) == 0:
+        return float("nan")
+    ok = np.isfinite(uv[:, 0])
+    uv, z = uv[ok], z[ok]
+    near = np.linalg.norm(uv - juv[0], axis=1) <= radius / jz[0]
+    if not near.any():
+        return float("nan")
+    front = float(np.quantile(z[near], front_quantile))
+    chord = _shortest_chord(uv, juv[0], band, gap, 12)
+    if chord is None:
+        return float("nan")
+    half = 0.5 * (chord[2] - chord[1])
+    ray = np.asarray(joint, dtype=np.float64) - np.asarray(camera, dtype=np.float64)
+    cos = float(ray @ np.asarray(axis, dtype=np.float64)) / float(np.linalg.norm(ray))
+    return (front + half * front - float(jz[0])) / cos
+
+
+def view_depth_joints(frames: Sequence[np.ndarray], registered: np.ndarray, labels: np.ndarray,
+                      bone_parent: np.ndarray, joints_rest: np.ndarray, R: np.ndarray,
+                      T: np.ndarray, camera: np.ndarray, *, n_frames: int = 10,
+                      points: str = "consensus", direction: str = "both",
+                      band_spacings: float = 4.5, gap_spacings: float = 6.0,
+                      radius_fraction: float = 0.02, label_fraction: float = 0.03
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """Move each joint along the camera ray to the depth of its part's axis (the chord rule).
+
+    In ``n_frames`` frames spread over the sequence, each joint's offset to its part's axis
+    depth is read from the observed points by :func:`chord_depth_offset`, and the median over
+    the frames is taken. Which observed points form the silhouette (``points``):
+
+    * ``"all"``: every observed point (a part in front of the joint's pixel, or behind it
+      within the chord, counts as its own);
+    * ``"adjacent"``: the points labelled with the joint's two bones (bone ``b`` and its
+      parent; the root: its bone and children), each observed point taking the label of the
+      nearest registered point if one lies within ``label_fraction`` of the subject size;
+    * ``"child"``: the points labelled with bone ``b`` alone (misses a joint at the very end
+      of its bone, or hidden behind its parent);
+    * ``"consensus"`` (default): the joint moves only where the three readings above agree
+      in sign (all say behind, or all in front), by their median. Each reading fails in its
+      own way (occluders, wrong labels, flat parts whose image width is not their depth), and
+      docs/joints.md ("Session 47") measures the consensus against each.
+
+    The joint moves by the result along its rest-frame ray.
+
+    Parameters
+    ----------
+    frames
+        ``F`` observed clouds ``(n_f, 3)``, camera frame, metres.
+    registered
+        ``(F, M, 3)`` the rest points registered to each frame, metres.
+    labels
+        ``(M,)`` bone of each rest point.
+    bone_parent
+        ``(B,)`` parent bone of each bone (-1 for the root); joint ``b`` heads bone ``b``.
+    joints_rest
+        ``(B, 3)`` rest-frame joints, metres (the rest frame is one of the camera frames).
+    R, T
+        ``(F, B, 3, 3)`` and ``(F, B, 3)`` bone transforms rest -> frame.
+    camera
+        ``(3,)`` camera position, metres.
+    n_frames
+        Number of frames read.
+    points
+        ``"consensus"``, ``"all"``, ``"adjacent"`` or ``"child"`` (above).
+    direction
+        ``"both"`` moves joints either way; ``"back"`` only away from the camera.
+    band_spacings, gap_spacings
+        Chord strip half-width and largest gap, in median image spacings of the frame's points.
+    radius_fraction
+        Front-depth neighbourhood radius, fraction of the subject size (the registered rest
+        points' bounding-box diagonal).
+    label_fraction
+        Largest distance from an observed point to its registered point that labels it.
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        ``(joints (B, 3), shift (B,))``: the moved rest joints (metres) and each joint's move
+        along its ray (metres, positive = away from the camera, 0 where undefined).
+    """
+    if points not in ("consensus", "all", "adjacent", "child"):
+        raise ValueError(f"view_depth_joints: unknown points {points!r}")
+    if direction not in ("both", "back"):
+        raise ValueError(f"view_depth_joints: unknown direction {direction!r}")
+    parent = np.asarray(bone_parent, dtype=np.int64)
+    J0 = np.asarray(joints_rest, dtype=np.float64)
+    cam = np.asarray(camera, dtype=np.float64)
+    F, B = len(frames), len(parent)
+    lab = np.asarray(labels, dtype=np.int64)
+    rest = np.asarray(registered[0], dtype=np.float64) if F else np.zeros((0, 3))
+    size = float(np.linalg.norm(rest.max(0) - rest.min(0))) if len(rest) else 0.0
+    shift = np.zeros(B)
+    if F == 0 or B == 0 or size <= 0 or n_frames <= 0:
+        return J0.copy(), shift
+    readings = ("all", "adjacent", "child") if points == "consensus" else (points,)
+    bones: dict[str, list[np.ndarray | None]] = {"all": [None] * B, "adjacent": [], "child": []}
+    for b in range(B):
+        others = [int(parent[b])] if parent[b] >= 0 else list(np.flatnonzero(parent == b))
+        bones["adjacent"].append(np.array([b] + others, dtype=np.int64))
+        bones["child"].append(np.array([b], dtype=np.int64))
+    idx = np.unique(np.linspace(0, F - 1, min(n_frames, F)).round().astype(np.int64))
+    pos = joint_trajectories(J0, np.asarray(R)[idx], np.asarray(T)[idx], parent)  # (K, B, 3)
+    offs = np.full((len(readings), len(idx), B), np.nan)
+    for k, f in enumerate(idx):
+        X = np.asarray(frames[f], dtype=np.float64)
+        if len(X) < 8:
+            continue
+        rays = X - cam
+        axis = (rays / np.linalg.norm(rays, axis=1, keepdims=True)).mean(0)
+        if not np.linalg.norm(axis) > 0:
+            continue
+        axis /= np.linalg.norm(axis)
+        uv, _ = image_coordinates(X, cam, axis)
+        ok = np.isfinite(uv[:, 0])
+        if ok.sum() < 8:
+            continue
+        spacing = float(np.median(cKDTree(uv[ok]).query(uv[ok], k=2)[0][:, 1]))
+        if not spacing > 0:
+            continue
+        xl = None
+        if any(r != "all" for r in readings):
+            d, nn = cKDTree(np.asarray(registered[f], dtype=np.float64)).query(X)
+            xl = np.where(d <= label_fraction * size, lab[nn], -1)
+        for i, reading in enumerate(readings):
+            for b in range(B):
+                sel = bones[reading][b]
+                part = X if sel is None or xl is None else X[np.isin(xl, sel)]
+                offs[i, k, b] = chord_depth_offset(
+                    part, pos[k, b], cam, axis, radius_fraction * size,
+                    band_spacings * spacing, gap_spacings * spacing)
+    med = np.zeros((len(readings), B))
+    for i in range(len(readings)):
+        valid = np.isfinite(offs[i]).any(0)
+        med[i, valid] = np.nanmedian(offs[i][:, valid], axis=0)
+    if points == "consensus":
+        sign = np.sign(med)
+        agree = (sign[0] == sign[1]) & (sign[0] == sign[2])
+        shift = np.where(agree, np.median(med, axis=0), 0.0)
+    else:
+        shift = med[0]
+    if direction == "back":
+        shift = np.maximum(shift, 0.0)
+    ray = J0 - cam
+    n = np.linalg.norm(ray, axis=1, keepdims=True)
+    out = J0 + shift[:, None] * np.divide(ray, n, out=np.zeros_like(ray), where=n > 0)
+    return out, shift
