@@ -224,11 +224,13 @@ def extract(
     if (stop_after == "joints" and config.joints.joint_depth == "chord"
             and st.view_camera is not None):
         # output joints to their parts' axis depth (docs/joints.md "Session 47")
+        t0 = time.perf_counter()
         final = result.refined_registration or reg
         joints_rest, _ = view_depth_joints(
             seq.frames, final.points, labels, parent, joints_rest, R, T, st.view_camera,
             n_frames=config.joints.depth_frames, points=config.joints.depth_points,
             direction=config.joints.depth_direction)
+        timings["joint_depth"] = time.perf_counter() - t0
     if stop_after == "joints" and config.joints.bone_twist == "minimal":
         R, T = minimal_twist(R, T, joints_rest, parent, reg.rest_points, labels,
                              config.joints.twist_min_elongation,
