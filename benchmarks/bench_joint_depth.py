@@ -11,7 +11,7 @@ from the camera. Prints per sequence the recall of each variant, then per varian
 recall / precision / normalised / raw error (cm) over the glTF rigs and over the procedural
 figures::
 
-    PYTHONPATH=python python benchmarks/bench_joint_depth.py              # suite + validation
+    PYTHONPATH=python python benchmarks/bench_joint_depth.py     # suite + validation, ~25 min
     PYTHONPATH=python python benchmarks/bench_joint_depth.py --sets suite --only human,girl_run
 """
 
@@ -104,14 +104,15 @@ def run(sequences: dict[str, tuple[str, dict]], only: set[str], frames: int,
         res = extract(seq, cfg, None, pictures=False)
         sk, st = res.skeleton, res.structure
         final = res.refined_registration or res.registration
-        frames = remove_sparse_frames(seq, cfg.preprocess.sparse_neighbors,
-                                      cfg.preprocess.sparse_ratio)[0].frames
+        # the frames the pipeline reads: cleaned as extract cleans them
+        observed = remove_sparse_frames(seq, cfg.preprocess.sparse_neighbors,
+                                        cfg.preprocess.sparse_ratio)[0].frames
         line, secs = f"{name:<24} ", []
         for label, points, direction in VARIANTS:
             P = sk.joint_positions
             if points is not None and st.view_camera is not None:
                 t0 = time.perf_counter()
-                J, _ = view_depth_joints(frames, final.points, sk.labels, sk.parents,
+                J, _ = view_depth_joints(observed, final.points, sk.labels, sk.parents,
                                          sk.rest_positions, sk.bone_rotations,
                                          sk.bone_translations, st.view_camera,
                                          n_frames=depth_frames, points=points,

@@ -477,8 +477,9 @@ class JointsConfig:
     # left it. depth_points: which observed points form the silhouette ("all"; "adjacent" =
     # the joint's two bones; "child" = the joint's own bone; "consensus" = move only where
     # those three agree in sign, by their median); depth_direction: "both" or "back" (never
-    # towards the camera). glTF rigs (17 sequences): recall 0.669 -> 0.737, procedural
-    # figures (13) unchanged at 0.976 ("all" alone: 0.757 but 0.929)
+    # towards the camera). Suite + validation (benchmarks/bench_joint_depth.py): glTF rigs
+    # (17 sequences) recall 0.669 -> 0.733, procedural figures (13) unchanged at 0.976
+    # ("all" alone: 0.781 but 0.929)
     joint_depth: str = "chord"
     depth_points: str = "consensus"
     depth_direction: str = "both"
@@ -516,7 +517,8 @@ class JointsConfig:
         _check_choices(self, "joints", {
             "mode": ("articulated", "paper"), "init": ("track", "structure"),
             "weight_candidates": ("tree", "all"), "bone_twist": ("minimal", "fit"),
-            "joint_depth": ("chord", "off"), "depth_points": ("consensus", "all", "adjacent", "child"),
+            "joint_depth": ("chord", "off"),
+            "depth_points": ("consensus", "all", "adjacent", "child"),
             "depth_direction": ("both", "back")})
         if not (isinstance(self.depth_frames, int) and not isinstance(self.depth_frames, bool)
                 and self.depth_frames >= 1):

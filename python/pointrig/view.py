@@ -25,7 +25,7 @@ from scipy.spatial import cKDTree
 from .kinematics import joint_trajectories
 
 __all__ = ["two_layer_fraction", "is_single_view", "in_view", "view_depth_correct",
-           "image_coordinates", "chord_half_width", "chord_depth_offset",
+           "image_coordinates", "chord_half_width", "chord_depth_offset", "view_depth_joints",
            "SINGLE_VIEW_MAX_TWO_LAYER"]
 
 #: Point sets with more than this fraction of two-layer camera rays are not one depth view
@@ -253,16 +253,16 @@ def chord_half_width(uv: np.ndarray, centre: np.ndarray, band: float, gap: float
         The half-length, same unit; ``inf`` if no direction gives a chord.
     """
     chord = _shortest_chord(uv, centre, band, gap, n_directions)
-    return np.inf if chord is None else 0.5 * (chord[2] - chord[1])
+    return np.inf if chord is None else 0.5 * (chord[1] - chord[0])
 
 
 def _shortest_chord(uv: np.ndarray, centre: np.ndarray, band: float, gap: float,
-                    n_directions: int) -> tuple[np.ndarray, float, float] | None:
-    """The shortest chord of :func:`chord_half_width`: ``(direction (2,), a, b)`` with the
-    chord from ``centre + a direction`` to ``centre + b direction`` (``a < 0 < b`` up to the
-    sampling), or ``None``."""
+                    n_directions: int) -> tuple[float, float] | None:
+    """The shortest chord of :func:`chord_half_width`: ``(a, b)``, the chord running from
+    ``centre + a d`` to ``centre + b d`` along its unit direction ``d`` (``a < 0 < b`` up to
+    the sampling), or ``None``."""
     rel = np.asarray(uv, dtype=np.float64) - np.asarray(centre, dtype=np.float64)
-    best: tuple[np.ndarray, float, float] | None = None
+    best: tuple[float, float] | None = None
     for th in np.linspace(0.0, np.pi, n_directions, endpoint=False):
         d = np.array([np.cos(th), np.sin(th)])
         s = np.sort(rel[np.abs(rel @ np.array([-d[1], d[0]])) < band] @ d)
@@ -277,8 +277,8 @@ def _shortest_chord(uv: np.ndarray, centre: np.ndarray, band: float, gap: float,
         right = breaks[breaks >= hi]
         a = float(s[left[-1] + 1] if len(left) else s[0])
         b = float(s[right[0]] if len(right) else s[-1])
-        if best is None or b - a < best[2] - best[1]:
-            best = (d, a, b)
+        if best is None or b - a < best[1] - best[0]:
+            best = (a, b)
     return best
 
 
@@ -325,10 +325,9 @@ def chord_depth_offset(points: np.ndarray, joint: np.ndarray, camera: np.ndarray
     if not near.any():
         return float("nan")
     front = float(np.quantile(z[near], front_quantile))
-    chord = _shortest_chord(uv, juv[0], band, gap, 12)
-    if chord is None:
+    half = chord_half_width(uv, juv[0], band, gap)
+    if not np.isfinite(half):
         return float("nan")
-    half = 0.5 * (chord[2] - chord[1])
     ray = np.asarray(joint, dtype=np.float64) - np.asarray(camera, dtype=np.float64)
     cos = float(ray @ np.asarray(axis, dtype=np.float64)) / float(np.linalg.norm(ray))
     return (front + half * front - float(jz[0])) / cos
