@@ -479,7 +479,8 @@ class JointsConfig:
     # those three agree in sign, by their median); depth_direction: "both" or "back" (never
     # towards the camera). Suite + validation (benchmarks/bench_joint_depth.py): glTF rigs
     # (17 sequences) recall 0.669 -> 0.733, procedural figures (13) unchanged at 0.976
-    # ("all" alone: 0.781 but 0.929)
+    # ("all" alone: 0.781 but 0.929). Single-view input only: off wherever [structure]'s
+    # view-depth correction is (single_view = "no", view_depth_quantile = 0, camera not in view)
     joint_depth: str = "chord"
     depth_points: str = "consensus"
     depth_direction: str = "both"
