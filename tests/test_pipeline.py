@@ -278,7 +278,27 @@ def test_joint_depth_moves_rest_joints_along_camera_rays_only(demo_run, tmp_path
     along = np.sum(moved * ray, axis=1)
     np.testing.assert_allclose(moved, along[:, None] * ray, atol=1e-9)
     assert np.abs(along).max() > 1e-3  # some joint moved
+    assert "joint_depth" in json.loads(
+        (demo_run / "skeleton.json").read_text())["params"]["timings_s"]
     doc_on = json.loads((demo_run / "skeleton.json").read_text())["params"]["joints"]
     doc_off = json.loads((out / "skeleton.json").read_text())["params"]["joints"]
     assert doc_on["joint_depth"] == "chord" and doc_on["depth_points"] == "consensus"
     assert doc_off["joint_depth"] == "off"
+
+
+def test_joint_depth_is_off_on_input_that_is_not_one_view(demo_run, tmp_path):
+    """With ``[structure] single_view = "no"`` (fused or two-sided clouds) the joint-depth pass
+    does not run: the default gives the same joints as ``joint_depth = "off"``."""
+    runs = {}
+    for name, extra in (("default", ""), ("off", 'joint_depth = "off"\n')):
+        cfg = tmp_path / f"{name}.toml"
+        cfg.write_text(f'[structure]\nsingle_view = "no"\n[joints]\n{extra}')
+        out = tmp_path / name
+        out.mkdir()
+        shutil.copy(demo_run / "registration.npz", out / "registration.npz")
+        assert main(["extract", str(demo_path() / "frames"), "-o", str(out), "-q",
+                     "--no-pictures", "--config", str(cfg)]) == 0
+        runs[name] = load_skeleton_json(out / "skeleton.json")
+        timings = json.loads((out / "skeleton.json").read_text())["params"]["timings_s"]
+        assert "joint_depth" not in timings
+    np.testing.assert_array_equal(runs["default"].rest_positions, runs["off"].rest_positions)
