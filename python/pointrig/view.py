@@ -79,13 +79,10 @@ def two_layer_fraction(points: np.ndarray, camera: np.ndarray, *, bin_spacings: 
     rays = _rays(points, camera)
     if rays is None:
         return 1.0
-    P, rng_, dirs, m, cos = rays
+    P, rng_, _, m, cos = rays
     if np.any(cos <= 0.1):
         return 1.0
-    e1 = np.cross(m, [1.0, 0.0, 0.0] if abs(m[0]) < 0.9 else [0.0, 1.0, 0.0])
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(m, e1)
-    uv = np.stack([dirs @ e1, dirs @ e2], 1) / cos[:, None]
+    uv = image_coordinates(points, camera, m)[0]
     spacing = float(np.median(cKDTree(P).query(P, k=2)[0][:, 1]))
     if spacing <= 0:
         return 0.0
@@ -423,11 +420,10 @@ def view_depth_joints(frames: Sequence[np.ndarray], registered: np.ndarray, labe
         X = np.asarray(frames[f], dtype=np.float64)
         if len(X) < 8:
             continue
-        rays = X - cam
-        axis = (rays / np.linalg.norm(rays, axis=1, keepdims=True)).mean(0)
-        if not np.linalg.norm(axis) > 0:
+        rays = _rays(X, cam)
+        if rays is None:
             continue
-        axis /= np.linalg.norm(axis)
+        axis = rays[3]  # the mean viewing direction
         uv, _ = image_coordinates(X, cam, axis)
         ok = np.isfinite(uv[:, 0])
         if ok.sum() < 8:
