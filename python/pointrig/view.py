@@ -313,6 +313,15 @@ def chord_depth_offset(points: np.ndarray, joint: np.ndarray, camera: np.ndarray
         ``nan`` if no point lies near the joint's pixel or no chord passes through it.
     """
     uv, z = image_coordinates(points, camera, axis)
+    return _projected_chord_offset(uv, z, joint, camera, axis, radius, band, gap,
+                                   front_quantile)
+
+
+def _projected_chord_offset(uv: np.ndarray, z: np.ndarray, joint: np.ndarray,
+                            camera: np.ndarray, axis: np.ndarray, radius: float, band: float,
+                            gap: float, front_quantile: float = 0.2) -> float:
+    """:func:`chord_depth_offset` on points already projected by :func:`image_coordinates`
+    (``uv (n, 2)``, ``z (n,)``), so that a frame is projected once for all its joints."""
     juv, jz = image_coordinates(np.asarray(joint, dtype=np.float64)[None], camera, axis)
     if not jz[0] > 0 or len(z) == 0:
         return float("nan")
@@ -418,13 +427,11 @@ def view_depth_joints(frames: Sequence[np.ndarray], registered: np.ndarray, labe
     offs = np.full((len(readings), len(idx), B), np.nan)
     for k, f in enumerate(idx):
         X = np.asarray(frames[f], dtype=np.float64)
-        if len(X) < 8:
-            continue
         rays = _rays(X, cam)
         if rays is None:
             continue
         axis = rays[3]  # the mean viewing direction
-        uv, _ = image_coordinates(X, cam, axis)
+        uv, z = image_coordinates(X, cam, axis)  # once per frame, shared by every joint
         ok = np.isfinite(uv[:, 0])
         if ok.sum() < 8:
             continue
@@ -438,9 +445,9 @@ def view_depth_joints(frames: Sequence[np.ndarray], registered: np.ndarray, labe
         for i, reading in enumerate(readings):
             for b in range(B):
                 sel = bones[reading][b]
-                part = X if sel is None or xl is None else X[np.isin(xl, sel)]
-                offs[i, k, b] = chord_depth_offset(
-                    part, pos[k, b], cam, axis, radius_fraction * size,
+                part = slice(None) if sel is None or xl is None else np.isin(xl, sel)
+                offs[i, k, b] = _projected_chord_offset(
+                    uv[part], z[part], pos[k, b], cam, axis, radius_fraction * size,
                     band_spacings * spacing, gap_spacings * spacing)
     med = np.zeros((len(readings), B))
     for i in range(len(readings)):
