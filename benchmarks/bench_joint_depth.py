@@ -6,8 +6,9 @@ silhouette's shortest chord through that pixel (:func:`pointrig.view.view_depth_
 pass runs after everything else, so one pipeline run per sequence (with the pass off and the
 fitted bone rolls, whose joint trajectories the default's ``bone_twist = "minimal"`` keeps
 exactly) serves every reading: the silhouette of all observed points, of the joint's two bones,
-of its own bone, and their consensus (the default), each moving joints both ways or only away
-from the camera. Prints per sequence the recall of each variant, then per variant the means of
+of its own bone, their consensus (session 47), each moving joints both ways or only away from
+the camera, and the whole view where it is neither occluded nor flat, else the consensus
+("visible", the default since session 48). Prints per sequence the recall of each variant, then per variant the means of
 recall / precision / normalised / raw error (cm) over the glTF rigs and over the procedural
 figures::
 
@@ -45,6 +46,7 @@ VARIANTS: list[tuple[str, str | None, str]] = [
     ("all, back only", "all", "back"),
     ("consensus", "consensus", "both"),
     ("consensus, back only", "consensus", "back"),
+    ("visible", "visible", "both"),
 ]
 
 

@@ -1,5 +1,5 @@
 """benchmarks/bench_joint_depth.py applies each reading of the joint-depth pass to one
-pipeline run; its "off" and "consensus" rows must be what the pipeline itself gives with the
+pipeline run; its "off" and "visible" rows must be what the pipeline itself gives with the
 pass off and with the default (the oracle: two full runs of :func:`pointrig.pipeline.extract`)."""
 
 from __future__ import annotations
@@ -26,10 +26,10 @@ def test_bench_rows_match_the_pipeline_with_the_pass_off_and_on(capsys):
     syn = next(bench_refine.suite(16, set(), seqs))[1]
     seq = syn.to_point_sequence()
     for label, cfg in (("off", apply_overrides({"joints": {"joint_depth": "off"}})),
-                       ("consensus", PipelineConfig())):
+                       ("visible", PipelineConfig())):
         r = score_joints(extract(seq, cfg, None, pictures=False).skeleton.joint_positions, syn)
         got = rows[label]["upper_body"]
         assert got[0] == r.recall and got[1] == r.precision
         assert got[3] == pytest.approx(r.raw_error, abs=1e-6)
-    assert rows["consensus"]["upper_body"][3] != rows["off"]["upper_body"][3]  # joints moved
+    assert rows["visible"]["upper_body"][3] != rows["off"]["upper_body"][3]  # joints moved
     assert "upper_body" in capsys.readouterr().out

@@ -282,7 +282,7 @@ def test_joint_depth_moves_rest_joints_along_camera_rays_only(demo_run, tmp_path
         (demo_run / "skeleton.json").read_text())["params"]["timings_s"]
     doc_on = json.loads((demo_run / "skeleton.json").read_text())["params"]["joints"]
     doc_off = json.loads((out / "skeleton.json").read_text())["params"]["joints"]
-    assert doc_on["joint_depth"] == "chord" and doc_on["depth_points"] == "consensus"
+    assert doc_on["joint_depth"] == "chord" and doc_on["depth_points"] == "visible"
     assert doc_off["joint_depth"] == "off"
 
 

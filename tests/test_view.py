@@ -13,6 +13,7 @@ from pointrig.view import (
     SINGLE_VIEW_MAX_TWO_LAYER,
     chord_depth_offset,
     chord_half_width,
+    chord_roundness,
     in_view,
     is_single_view,
     two_layer_fraction,
@@ -272,7 +273,7 @@ def test_chord_depth_offset_finds_a_ray_cast_cylinders_axis(start):
                                        np.array([0.0, 0.0, 1.0]), 0.02, 4.5 / 525, 6.0 / 525))
 
 
-@pytest.mark.parametrize("points", ["consensus", "all", "adjacent", "child"])
+@pytest.mark.parametrize("points", ["visible", "consensus", "all", "adjacent", "child"])
 def test_view_depth_joints_moves_surface_joints_of_a_two_bone_limb_to_its_axis(points):
     depth, r = 2.0, 0.06
     rest = _ray_cast_cylinder(depth, r, (-0.4, 0.4))
@@ -319,9 +320,77 @@ def test_view_depth_joints_consensus_ignores_an_occluder_that_misleads_the_whole
     args = ([frame] * F, np.repeat(rest[None], F, axis=0), labels, parent, joints, R, T,
             np.zeros(3))
     _, shift_all = view_depth_joints(*args, points="all")
-    out, shift = view_depth_joints(*args, points="consensus")
     assert shift_all[1] < -0.2  # the whole view puts joint 1 at the bar's depth
-    assert shift[1] == 0.0  # its own bones disagree: it stays
-    assert out[0, 2] == pytest.approx(depth, abs=0.1 * r)  # the visible joint still moves
+    for points in ("consensus", "visible"):  # "visible": joint 1's bone is not what is seen
+        out, shift = view_depth_joints(*args, points=points)
+        assert shift[1] == 0.0  # its own bones disagree: it stays
+        assert out[0, 2] == pytest.approx(depth, abs=0.1 * r)  # the visible joint still moves
     with pytest.raises(ValueError, match="points"):
         view_depth_joints(*args, points="nearest")
+
+
+def _plate(depth: float, half: float, pixel: float = 1.0 / 525) -> np.ndarray:
+    """``(n, 3)`` a flat square plate facing the camera at the origin (depth ``depth`` m, side
+    ``2 half`` m), one point per pixel."""
+    u = np.arange(-0.5, 0.5, pixel)
+    U, V = np.meshgrid(u, u)
+    P = np.stack([U.ravel() * depth, V.ravel() * depth, np.full(U.size, depth)], 1)
+    return P[(np.abs(P[:, 0]) <= half) & (np.abs(P[:, 1]) <= half)]
+
+
+def test_chord_roundness_tells_a_round_part_from_a_flat_one():
+    from pointrig.view import image_coordinates
+
+    axis, band, gap = np.array([0.0, 0.0, 1.0]), 4.5 / 525, 6.0 / 525
+    cyl = _ray_cast_cylinder(2.0, 0.08, (-0.3, 0.3))
+    uv, z = image_coordinates(cyl, np.zeros(3), axis)
+    # the exact circular profile: depth over half-width 1 (the fit leaves the grazing ends out)
+    assert chord_roundness(uv, z, np.array([0.02, 0.0]), band, gap) == pytest.approx(1.0,
+                                                                                    abs=0.15)
+    plate = _plate(2.0, 0.1)
+    uvp, zp = image_coordinates(plate, np.zeros(3), axis)
+    assert abs(chord_roundness(uvp, zp, np.array([0.0, 0.0]), band, gap)) < 0.05
+    # off the silhouette: undefined
+    assert np.isnan(chord_roundness(uv, z, np.array([0.0, 0.3]), band, gap))
+
+
+def _strip_labelled(points: np.ndarray, strip: float) -> np.ndarray:
+    """Bone 1 = a strip ``|y| < strip`` m right of x = 0 (a fragment of the part, as a bone that
+    cuts across a rig's part labels it), bone 0 = the rest."""
+    return ((points[:, 0] > 0) & (np.abs(points[:, 1]) < strip)).astype(np.int64)
+
+
+def _depth_args(points: np.ndarray, labels: np.ndarray, joints: np.ndarray, F: int = 3):
+    B = len(joints)
+    return ([points] * F, np.repeat(points[None], F, axis=0), labels, np.array([-1, 0]),
+            joints, np.tile(np.eye(3), (F, B, 1, 1)), np.zeros((F, B, 3)), np.zeros(3))
+
+
+def test_view_depth_joints_visible_trusts_the_whole_view_of_a_seen_round_part():
+    # a thick round limb whose joint-1 bone labels only a strip along it: the bone's own
+    # silhouette is narrow and reads the joint forwards, so the three readings disagree in
+    # sign and the consensus leaves the joint; the bone is what the camera sees at the joint's
+    # pixel and the part is round, so "visible" takes the whole view's reading: the axis
+    depth, r = 2.0, 0.15
+    limb = _ray_cast_cylinder(depth, r, (-0.5, 0.5))
+    joints = np.array([[-0.2, 0.0, depth - r], [0.1, 0.0, depth - r + 0.03]])
+    args = _depth_args(limb, _strip_labelled(limb, 0.01), joints)
+    _, shift_c = view_depth_joints(*args, points="consensus")
+    _, shift_child = view_depth_joints(*args, points="child")
+    out, shift = view_depth_joints(*args, points="visible")
+    assert shift_child[1] < 0 < shift[1] and shift_c[1] == 0.0
+    assert out[1, 2] == pytest.approx(depth, abs=0.1 * r)
+
+
+def test_view_depth_joints_visible_keeps_the_consensus_on_a_flat_part():
+    # the same labels on a flat plate: wide in the image but thin along the ray, so the whole
+    # view's chord would push the joint far back; the flat depth profile vetoes it
+    depth = 2.0
+    plate = _plate(depth, 0.15)
+    joints = np.array([[-0.1, 0.0, depth], [0.05, 0.0, depth + 0.01]])
+    args = _depth_args(plate, _strip_labelled(plate, 0.01), joints)
+    _, shift_all = view_depth_joints(*args, points="all")
+    _, shift_c = view_depth_joints(*args, points="consensus")
+    _, shift = view_depth_joints(*args, points="visible")
+    assert shift_all[1] > 0.1
+    assert shift[1] == shift_c[1] and abs(shift[1]) < 0.02

@@ -476,13 +476,16 @@ class JointsConfig:
     # pointrig.view.view_depth_joints), the median over depth_frames frames; "off": as step 3
     # left it. depth_points: which observed points form the silhouette ("all"; "adjacent" =
     # the joint's two bones; "child" = the joint's own bone; "consensus" = move only where
-    # those three agree in sign, by their median); depth_direction: "both" or "back" (never
+    # those three agree in sign, by their median (session 47); "visible" = "all" where the
+    # joint's own bone is what the camera sees at its pixel and the chord's depth profile is
+    # round, the consensus elsewhere (session 48)); depth_direction: "both" or "back" (never
     # towards the camera). Suite + validation (benchmarks/bench_joint_depth.py): glTF rigs
-    # (17 sequences) recall 0.669 -> 0.733, procedural figures (13) unchanged at 0.976
-    # ("all" alone: 0.781 but 0.929). Single-view input only: off wherever [structure]'s
-    # view-depth correction is (single_view = "no", view_depth_quantile = 0, camera not in view)
+    # (17 sequences) recall 0.669 (off) -> 0.733 (consensus) -> RIGS_VISIBLE (visible),
+    # procedural figures (13) 0.976 -> 0.976 -> PROC_VISIBLE ("all" alone: 0.781 but 0.929).
+    # Single-view input only: off wherever [structure]'s view-depth correction is
+    # (single_view = "no", view_depth_quantile = 0, camera not in view)
     joint_depth: str = "chord"
-    depth_points: str = "consensus"
+    depth_points: str = "visible"
     depth_direction: str = "both"
     depth_frames: int = 10
     # --- initial bone transforms (our deviation, docs/joints.md session 14) ---
@@ -519,7 +522,7 @@ class JointsConfig:
             "mode": ("articulated", "paper"), "init": ("track", "structure"),
             "weight_candidates": ("tree", "all"), "bone_twist": ("minimal", "fit"),
             "joint_depth": ("chord", "off"),
-            "depth_points": ("consensus", "all", "adjacent", "child"),
+            "depth_points": ("visible", "consensus", "all", "adjacent", "child"),
             "depth_direction": ("both", "back")})
         if not (isinstance(self.depth_frames, int) and not isinstance(self.depth_frames, bool)
                 and self.depth_frames >= 1):

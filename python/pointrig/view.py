@@ -25,7 +25,8 @@ from scipy.spatial import cKDTree
 from .kinematics import joint_trajectories
 
 __all__ = ["two_layer_fraction", "is_single_view", "in_view", "view_depth_correct",
-           "image_coordinates", "chord_half_width", "chord_depth_offset", "view_depth_joints",
+           "image_coordinates", "chord_half_width", "chord_roundness", "chord_depth_offset",
+           "view_depth_joints",
            "SINGLE_VIEW_MAX_TWO_LAYER"]
 
 #: Point sets with more than this fraction of two-layer camera rays are not one depth view
@@ -254,12 +255,12 @@ def chord_half_width(uv: np.ndarray, centre: np.ndarray, band: float, gap: float
 
 
 def _shortest_chord(uv: np.ndarray, centre: np.ndarray, band: float, gap: float,
-                    n_directions: int) -> tuple[float, float] | None:
-    """The shortest chord of :func:`chord_half_width`: ``(a, b)``, the chord running from
-    ``centre + a d`` to ``centre + b d`` along its unit direction ``d`` (``a < 0 < b`` up to
-    the sampling), or ``None``."""
+                    n_directions: int) -> tuple[float, float, np.ndarray] | None:
+    """The shortest chord of :func:`chord_half_width`: ``(a, b, d)``, the chord running from
+    ``centre + a d`` to ``centre + b d`` along its unit direction ``d (2,)`` (``a < 0 < b`` up
+    to the sampling), or ``None``."""
     rel = np.asarray(uv, dtype=np.float64) - np.asarray(centre, dtype=np.float64)
-    best: tuple[float, float] | None = None
+    best: tuple[float, float, np.ndarray] | None = None
     for th in np.linspace(0.0, np.pi, n_directions, endpoint=False):
         d = np.array([np.cos(th), np.sin(th)])
         s = np.sort(rel[np.abs(rel @ np.array([-d[1], d[0]])) < band] @ d)
@@ -275,8 +276,61 @@ def _shortest_chord(uv: np.ndarray, centre: np.ndarray, band: float, gap: float,
         a = float(s[left[-1] + 1] if len(left) else s[0])
         b = float(s[right[0]] if len(right) else s[-1])
         if best is None or b - a < best[1] - best[0]:
-            best = (a, b)
+            best = (a, b, d)
     return best
+
+
+def chord_roundness(uv: np.ndarray, z: np.ndarray, centre: np.ndarray, band: float,
+                    gap: float, inner: float = 0.8, n_directions: int = 12) -> float:
+    """How deep the part under ``centre`` is for its width: the depth of a circular profile
+    fitted to the observed depths along the shortest chord, over the chord's half-length.
+
+    Along the shortest chord through ``centre`` (:func:`chord_half_width`), the depths ``z`` of
+    the points in the strip within ``inner`` of the half-length from the chord's middle are
+    fitted by least squares with ``z0 + h (1 - sqrt(1 - t^2))``, ``t`` the position over the
+    half-length: a circular cross-section gives ``h`` equal to its radius (ratio 1), a flat
+    part facing the camera (a palm, a board) a ratio near 0. The chord's ends are left out
+    because a depth camera loses a round part's grazing edges first.
+
+    Parameters
+    ----------
+    uv, z
+        ``(n, 2)`` image coordinates (tangent units) and ``(n,)`` depths (metres) of the points
+        (:func:`image_coordinates`).
+    centre
+        ``(2,)`` the query pixel, tangent units.
+    band, gap
+        Chord strip half-width and largest gap, tangent units.
+    inner
+        Fraction of the half-length about the chord's middle whose points are fitted.
+    n_directions
+        Directions tried for the chord.
+
+    Returns
+    -------
+    float
+        ``h`` over the half-length in metres at the fitted depth (dimensionless); ``nan`` if no
+        chord passes through ``centre`` or fewer than 5 points lie on its inner part.
+    """
+    uv = np.asarray(uv, dtype=np.float64)
+    z = np.asarray(z, dtype=np.float64)
+    chord = _shortest_chord(uv, centre, band, gap, n_directions)
+    if chord is None:
+        return float("nan")
+    a, b, d = chord
+    half, mid = 0.5 * (b - a), 0.5 * (a + b)
+    if not half > 0:
+        return float("nan")
+    rel = uv - np.asarray(centre, dtype=np.float64)
+    x = rel @ d
+    on = ((np.abs(rel @ np.array([-d[1], d[0]])) < band) & (x >= a) & (x <= b)
+          & (np.abs(x - mid) <= inner * half))
+    if on.sum() < 5:
+        return float("nan")
+    t = (x[on] - mid) / half
+    g = 1.0 - np.sqrt(np.clip(1.0 - t * t, 0.0, 1.0))
+    (z0, h), *_ = np.linalg.lstsq(np.stack([np.ones_like(g), g], 1), z[on], rcond=None)
+    return float(h / (half * z0)) if z0 > 0 else float("nan")
 
 
 def chord_depth_offset(points: np.ndarray, joint: np.ndarray, camera: np.ndarray,
@@ -322,29 +376,54 @@ def _projected_chord_offset(uv: np.ndarray, z: np.ndarray, joint: np.ndarray,
                             gap: float, front_quantile: float = 0.2) -> float:
     """:func:`chord_depth_offset` on points already projected by :func:`image_coordinates`
     (``uv (n, 2)``, ``z (n,)``), so that a frame is projected once for all its joints."""
+    front, half, _ = _projected_chord_parts(uv, z, joint, camera, axis, radius, band, gap,
+                                            front_quantile)
+    return front + half
+
+
+def _projected_chord_parts(uv: np.ndarray, z: np.ndarray, joint: np.ndarray,
+                           camera: np.ndarray, axis: np.ndarray, radius: float, band: float,
+                           gap: float, front_quantile: float = 0.2, roundness: bool = False
+                           ) -> tuple[float, float, float]:
+    """The parts of :func:`chord_depth_offset` on projected points: ``(front, half,
+    round)``, the front surface's offset from the joint along its ray (metres, positive
+    behind the joint), the chord's half-width (metres along the ray) and, if ``roundness``,
+    :func:`chord_roundness` at the joint's pixel (else ``nan``). ``nan`` where undefined."""
+    nan = float("nan")
     juv, jz = image_coordinates(np.asarray(joint, dtype=np.float64)[None], camera, axis)
     if not jz[0] > 0 or len(z) == 0:
-        return float("nan")
+        return nan, nan, nan
     ok = np.isfinite(uv[:, 0])
     uv, z = uv[ok], z[ok]
     near = np.linalg.norm(uv - juv[0], axis=1) <= radius / jz[0]
     if not near.any():
-        return float("nan")
-    front = float(np.quantile(z[near], front_quantile))
-    half = chord_half_width(uv, juv[0], band, gap)
-    if not np.isfinite(half):
-        return float("nan")
+        return nan, nan, nan
     ray = np.asarray(joint, dtype=np.float64) - np.asarray(camera, dtype=np.float64)
     cos = float(ray @ np.asarray(axis, dtype=np.float64)) / float(np.linalg.norm(ray))
-    return (front + half * front - float(jz[0])) / cos
+    front = float(np.quantile(z[near], front_quantile))
+    half = chord_half_width(uv, juv[0], band, gap)
+    rnd = chord_roundness(uv, z, juv[0], band, gap) if roundness else nan
+    if not np.isfinite(half):
+        return (front - float(jz[0])) / cos, nan, rnd
+    return (front - float(jz[0])) / cos, half * front / cos, rnd
+
+
+def _nanmedian0(x: np.ndarray, empty: float) -> np.ndarray:
+    """Median over axis 0 of ``x (K, B)`` ignoring NaN; ``empty`` where a column is all NaN."""
+    out = np.full(x.shape[1], empty)
+    valid = np.isfinite(x).any(0)
+    if valid.any():
+        out[valid] = np.nanmedian(x[:, valid], axis=0)
+    return out
 
 
 def view_depth_joints(frames: Sequence[np.ndarray], registered: np.ndarray, labels: np.ndarray,
                       bone_parent: np.ndarray, joints_rest: np.ndarray, R: np.ndarray,
                       T: np.ndarray, camera: np.ndarray, *, n_frames: int = 10,
-                      points: str = "consensus", direction: str = "both",
+                      points: str = "visible", direction: str = "both",
                       band_spacings: float = 4.5, gap_spacings: float = 6.0,
-                      radius_fraction: float = 0.02, label_fraction: float = 0.03
+                      radius_fraction: float = 0.02, label_fraction: float = 0.03,
+                      visible_fraction: float = 0.01, min_roundness: float = 0.7
                       ) -> tuple[np.ndarray, np.ndarray]:
     """Move each joint along the camera ray to the depth of its part's axis (the chord rule).
 
@@ -359,10 +438,16 @@ def view_depth_joints(frames: Sequence[np.ndarray], registered: np.ndarray, labe
       nearest registered point if one lies within ``label_fraction`` of the subject size;
     * ``"child"``: the points labelled with bone ``b`` alone (misses a joint at the very end
       of its bone, or hidden behind its parent);
-    * ``"consensus"`` (default): the joint moves only where the three readings above agree
-      in sign (all say behind, or all in front), by their median. Each reading fails in its
-      own way (occluders, wrong labels, flat parts whose image width is not their depth), and
-      docs/joints.md ("Session 47") measures the consensus against each.
+    * ``"consensus"``: the joint moves only where the three readings above agree in sign (all
+      say behind, or all in front), by their median. Each reading fails in its own way
+      (occluders, wrong labels, flat parts whose image width is not their depth), and
+      docs/joints.md ("Session 47") measures the consensus against each;
+    * ``"visible"`` (default): ``"all"`` where its two failures are ruled out, the consensus
+      elsewhere. No occluder: the front depth at the joint's pixel read from the joint's own
+      bone is within ``visible_fraction`` of the subject size of the front read from all
+      points (the bone itself is what the camera sees there). Not flat: the depth profile
+      along the shortest chord is that of a round part, :func:`chord_roundness` at least
+      ``min_roundness``. Medians over the frames. docs/joints.md ("Session 48").
 
     The joint moves by the result along its rest-frame ray.
 
@@ -385,7 +470,7 @@ def view_depth_joints(frames: Sequence[np.ndarray], registered: np.ndarray, labe
     n_frames
         Number of frames read.
     points
-        ``"consensus"``, ``"all"``, ``"adjacent"`` or ``"child"`` (above).
+        ``"visible"``, ``"consensus"``, ``"all"``, ``"adjacent"`` or ``"child"`` (above).
     direction
         ``"both"`` moves joints either way; ``"back"`` only away from the camera.
     band_spacings, gap_spacings
@@ -395,6 +480,9 @@ def view_depth_joints(frames: Sequence[np.ndarray], registered: np.ndarray, labe
         points' bounding-box diagonal).
     label_fraction
         Largest distance from an observed point to its registered point that labels it.
+    visible_fraction, min_roundness
+        The ``"visible"`` rule's tolerances (above): front depths, fraction of the subject
+        size; the roundness ratio.
 
     Returns
     -------
@@ -402,7 +490,7 @@ def view_depth_joints(frames: Sequence[np.ndarray], registered: np.ndarray, labe
         ``(joints (B, 3), shift (B,))``: the moved rest joints (metres) and each joint's move
         along its ray (metres, positive = away from the camera, 0 where undefined).
     """
-    if points not in ("consensus", "all", "adjacent", "child"):
+    if points not in ("visible", "consensus", "all", "adjacent", "child"):
         raise ValueError(f"view_depth_joints: unknown points {points!r}")
     if direction not in ("both", "back"):
         raise ValueError(f"view_depth_joints: unknown direction {direction!r}")
@@ -416,7 +504,8 @@ def view_depth_joints(frames: Sequence[np.ndarray], registered: np.ndarray, labe
     shift = np.zeros(B)
     if F == 0 or B == 0 or size <= 0 or n_frames <= 0:
         return J0.copy(), shift
-    readings = ("all", "adjacent", "child") if points == "consensus" else (points,)
+    combined = points in ("consensus", "visible")
+    readings = ("all", "adjacent", "child") if combined else (points,)
     bones: dict[str, list[np.ndarray | None]] = {"all": [None] * B, "adjacent": [], "child": []}
     for b in range(B):
         others = [int(parent[b])] if parent[b] >= 0 else list(np.flatnonzero(parent == b))
@@ -425,6 +514,8 @@ def view_depth_joints(frames: Sequence[np.ndarray], registered: np.ndarray, labe
     idx = np.unique(np.linspace(0, F - 1, min(n_frames, F)).round().astype(np.int64))
     pos = joint_trajectories(J0, np.asarray(R)[idx], np.asarray(T)[idx], parent)  # (K, B, 3)
     offs = np.full((len(readings), len(idx), B), np.nan)
+    fronts = np.full((len(readings), len(idx), B), np.nan)
+    rnd = np.full((len(idx), B), np.nan)
     for k, f in enumerate(idx):
         X = np.asarray(frames[f], dtype=np.float64)
         rays = _rays(X, cam)
@@ -446,17 +537,26 @@ def view_depth_joints(frames: Sequence[np.ndarray], registered: np.ndarray, labe
             for b in range(B):
                 sel = bones[reading][b]
                 part = slice(None) if sel is None or xl is None else np.isin(xl, sel)
-                offs[i, k, b] = _projected_chord_offset(
+                front, half, r = _projected_chord_parts(
                     uv[part], z[part], pos[k, b], cam, axis, radius_fraction * size,
-                    band_spacings * spacing, gap_spacings * spacing)
+                    band_spacings * spacing, gap_spacings * spacing,
+                    roundness=points == "visible" and reading == "all")
+                offs[i, k, b], fronts[i, k, b] = front + half, front
+                if reading == "all":
+                    rnd[k, b] = r
     med = np.zeros((len(readings), B))
     for i in range(len(readings)):
-        valid = np.isfinite(offs[i]).any(0)
-        med[i, valid] = np.nanmedian(offs[i][:, valid], axis=0)
-    if points == "consensus":
+        med[i] = _nanmedian0(offs[i], 0.0)
+    if combined:
         sign = np.sign(med)
         agree = (sign[0] == sign[1]) & (sign[0] == sign[2])
         shift = np.where(agree, np.median(med, axis=0), 0.0)
+        if points == "visible":
+            f_all, f_own = _nanmedian0(fronts[0], np.nan), _nanmedian0(fronts[2], np.nan)
+            with np.errstate(invalid="ignore"):
+                seen = np.abs(f_all - f_own) < visible_fraction * size
+                round_ = _nanmedian0(rnd, np.nan) >= min_roundness
+            shift = np.where(seen & round_, med[0], shift)
     else:
         shift = med[0]
     if direction == "back":
