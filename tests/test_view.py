@@ -352,6 +352,13 @@ def test_chord_roundness_tells_a_round_part_from_a_flat_one():
     assert abs(chord_roundness(uvp, zp, np.array([0.0, 0.0]), band, gap)) < 0.05
     # off the silhouette: undefined
     assert np.isnan(chord_roundness(uv, z, np.array([0.0, 0.3]), band, gap))
+    # a thin rod seen in front of a wider plate: no image gap between them, so the chord runs
+    # on over the plate, and its profile is a step, far deeper for its width than a circle
+    rod = _ray_cast_cylinder(1.8, 0.03, (-0.3, 0.3))
+    back = _plate(2.1, 0.25)
+    behind = np.abs(back[:, 1] / 2.1) < np.abs(rod[:, 1] / 1.8).max()
+    uvs, zs = image_coordinates(np.concatenate([rod, back[~behind]]), np.zeros(3), axis)
+    assert chord_roundness(uvs, zs, np.array([0.0, 0.0]), band, gap) > 1.0 / 0.7
 
 
 def _strip_labelled(points: np.ndarray, strip: float) -> np.ndarray:

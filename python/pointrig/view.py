@@ -423,8 +423,8 @@ def view_depth_joints(frames: Sequence[np.ndarray], registered: np.ndarray, labe
                       points: str = "visible", direction: str = "both",
                       band_spacings: float = 4.5, gap_spacings: float = 6.0,
                       radius_fraction: float = 0.02, label_fraction: float = 0.03,
-                      visible_fraction: float = 0.01, min_roundness: float = 0.7
-                      ) -> tuple[np.ndarray, np.ndarray]:
+                      visible_fraction: float = 0.01, min_roundness: float = 0.7,
+                      max_roundness: float = 1.0 / 0.7) -> tuple[np.ndarray, np.ndarray]:
     """Move each joint along the camera ray to the depth of its part's axis (the chord rule).
 
     In ``n_frames`` frames spread over the sequence, each joint's offset to its part's axis
@@ -445,9 +445,11 @@ def view_depth_joints(frames: Sequence[np.ndarray], registered: np.ndarray, labe
     * ``"visible"`` (default): ``"all"`` where its two failures are ruled out, the consensus
       elsewhere. No occluder: the front depth at the joint's pixel read from the joint's own
       bone is within ``visible_fraction`` of the subject size of the front read from all
-      points (the bone itself is what the camera sees there). Not flat: the depth profile
-      along the shortest chord is that of a round part, :func:`chord_roundness` at least
-      ``min_roundness``. Medians over the frames. docs/joints.md ("Session 48").
+      points (the bone itself is what the camera sees there). Round: the depth profile along
+      the shortest chord is that of a circle, :func:`chord_roundness` between
+      ``min_roundness`` and ``max_roundness`` (a flat part reads near 0; a thin part in front
+      of a wider one, whose chord runs on over it, reads a step far above 1). Medians over
+      the frames. docs/joints.md ("Session 48").
 
     The joint moves by the result along its rest-frame ray.
 
@@ -480,9 +482,9 @@ def view_depth_joints(frames: Sequence[np.ndarray], registered: np.ndarray, labe
         points' bounding-box diagonal).
     label_fraction
         Largest distance from an observed point to its registered point that labels it.
-    visible_fraction, min_roundness
+    visible_fraction, min_roundness, max_roundness
         The ``"visible"`` rule's tolerances (above): front depths, fraction of the subject
-        size; the roundness ratio.
+        size; the range of the roundness ratio (a circle within 30 % by default).
 
     Returns
     -------
@@ -555,7 +557,8 @@ def view_depth_joints(frames: Sequence[np.ndarray], registered: np.ndarray, labe
             f_all, f_own = _nanmedian0(fronts[0], np.nan), _nanmedian0(fronts[2], np.nan)
             with np.errstate(invalid="ignore"):
                 seen = np.abs(f_all - f_own) < visible_fraction * size
-                round_ = _nanmedian0(rnd, np.nan) >= min_roundness
+                ratio = _nanmedian0(rnd, np.nan)
+                round_ = (ratio >= min_roundness) & (ratio <= max_roundness)
             shift = np.where(seen & round_, med[0], shift)
     else:
         shift = med[0]
