@@ -33,6 +33,12 @@ __all__ = ["two_layer_fraction", "is_single_view", "in_view", "view_depth_correc
 #: (measured: rest points of single-view sequences 0.04-0.25, two-sided samples 0.41-0.57).
 SINGLE_VIEW_MAX_TWO_LAYER = 1.0 / 3.0
 
+#: Directions tried for the shortest chord through a pixel (:func:`chord_half_width`).
+CHORD_DIRECTIONS = 12
+#: Fraction of the chord's half-length about its middle whose depths :func:`chord_roundness`
+#: fits (a depth camera loses a round part's grazing edges first).
+PROFILE_INNER = 0.8
+
 
 def _rays(points: np.ndarray, camera: np.ndarray
           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
@@ -225,7 +231,7 @@ def image_coordinates(points: np.ndarray, camera: np.ndarray, axis: np.ndarray
 
 
 def chord_half_width(uv: np.ndarray, centre: np.ndarray, band: float, gap: float,
-                     n_directions: int = 12) -> float:
+                     n_directions: int = CHORD_DIRECTIONS) -> float:
     """Half the length of the shortest chord through ``centre`` of the silhouette of ``uv``.
 
     For each of ``n_directions`` directions evenly spread over 180 deg, the points within
@@ -281,7 +287,8 @@ def _shortest_chord(uv: np.ndarray, centre: np.ndarray, band: float, gap: float,
 
 
 def chord_roundness(uv: np.ndarray, z: np.ndarray, centre: np.ndarray, band: float,
-                    gap: float, inner: float = 0.8, n_directions: int = 12) -> float:
+                    gap: float, inner: float = PROFILE_INNER,
+                    n_directions: int = CHORD_DIRECTIONS) -> float:
     """How deep the part under ``centre`` is for its width: the depth of a circular profile
     fitted to the observed depths along the shortest chord, over the chord's half-length.
 
@@ -314,7 +321,14 @@ def chord_roundness(uv: np.ndarray, z: np.ndarray, centre: np.ndarray, band: flo
     """
     uv = np.asarray(uv, dtype=np.float64)
     z = np.asarray(z, dtype=np.float64)
-    chord = _shortest_chord(uv, centre, band, gap, n_directions)
+    return _profile_roundness(uv, z, centre, _shortest_chord(uv, centre, band, gap,
+                                                             n_directions), band, inner)
+
+
+def _profile_roundness(uv: np.ndarray, z: np.ndarray, centre: np.ndarray,
+                       chord: tuple[float, float, np.ndarray] | None, band: float,
+                       inner: float) -> float:
+    """:func:`chord_roundness` along a chord already found by :func:`_shortest_chord`."""
     if chord is None:
         return float("nan")
     a, b, d = chord
@@ -401,8 +415,9 @@ def _projected_chord_parts(uv: np.ndarray, z: np.ndarray, joint: np.ndarray,
     ray = np.asarray(joint, dtype=np.float64) - np.asarray(camera, dtype=np.float64)
     cos = float(ray @ np.asarray(axis, dtype=np.float64)) / float(np.linalg.norm(ray))
     front = float(np.quantile(z[near], front_quantile))
-    half = chord_half_width(uv, juv[0], band, gap)
-    rnd = chord_roundness(uv, z, juv[0], band, gap) if roundness else nan
+    chord = _shortest_chord(uv, juv[0], band, gap, CHORD_DIRECTIONS)
+    half = np.inf if chord is None else 0.5 * (chord[1] - chord[0])
+    rnd = _profile_roundness(uv, z, juv[0], chord, band, PROFILE_INNER) if roundness else nan
     if not np.isfinite(half):
         return (front - float(jz[0])) / cos, nan, rnd
     return (front - float(jz[0])) / cos, half * front / cos, rnd
