@@ -8,9 +8,9 @@ fitted bone rolls, whose joint trajectories the default's ``bone_twist = "minima
 exactly) serves every reading: the silhouette of all observed points, of the joint's two bones,
 of its own bone, their consensus (session 47), each moving joints both ways or only away from
 the camera, and the whole view where it is neither occluded nor flat, else the consensus
-("visible", the default since session 48). Prints per sequence the recall of each variant, then per variant the means of
-recall / precision / normalised / raw error (cm) over the glTF rigs and over the procedural
-figures::
+("visible", the default since session 48). Prints per sequence the recall of each variant,
+then per variant the means of recall / precision / normalised / raw error (cm) over the glTF
+rigs and over the procedural figures::
 
     PYTHONPATH=python python benchmarks/bench_joint_depth.py     # suite + validation, ~25 min
     PYTHONPATH=python python benchmarks/bench_joint_depth.py --sets suite --only human,girl_run
