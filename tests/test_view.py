@@ -391,7 +391,8 @@ def test_view_depth_joints_visible_trusts_the_whole_view_of_a_seen_round_part():
 
 def test_view_depth_joints_visible_keeps_the_consensus_on_a_flat_part():
     # the same labels on a flat plate: wide in the image but thin along the ray, so the whole
-    # view's chord would push the joint far back; the flat depth profile vetoes it
+    # view's chord would push the joint far back; the flat depth profile vetoes it, and any
+    # other chord reading with it (the joint stays)
     depth = 2.0
     plate = _plate(depth, 0.15)
     joints = np.array([[-0.1, 0.0, depth], [0.05, 0.0, depth + 0.01]])
@@ -400,4 +401,5 @@ def test_view_depth_joints_visible_keeps_the_consensus_on_a_flat_part():
     _, shift_c = view_depth_joints(*args, points="consensus")
     _, shift = view_depth_joints(*args, points="visible")
     assert shift_all[1] > 0.1
-    assert shift[1] == shift_c[1] and abs(shift[1]) < 0.02
+    assert shift[1] == 0.0 and abs(shift_c[1]) < 0.02
+    assert view_depth_joints(*args, points="visible", flat_roundness=-1.0)[1][1] == shift_c[1]

@@ -439,7 +439,8 @@ def view_depth_joints(frames: Sequence[np.ndarray], registered: np.ndarray, labe
                       band_spacings: float = 4.5, gap_spacings: float = 6.0,
                       radius_fraction: float = 0.02, label_fraction: float = 0.03,
                       visible_fraction: float = 0.01, min_roundness: float = 0.7,
-                      max_roundness: float = 1.0 / 0.7) -> tuple[np.ndarray, np.ndarray]:
+                      max_roundness: float = 1.0 / 0.7, flat_roundness: float = 0.5
+                      ) -> tuple[np.ndarray, np.ndarray]:
     """Move each joint along the camera ray to the depth of its part's axis (the chord rule).
 
     In ``n_frames`` frames spread over the sequence, each joint's offset to its part's axis
@@ -463,8 +464,10 @@ def view_depth_joints(frames: Sequence[np.ndarray], registered: np.ndarray, labe
       points (the bone itself is what the camera sees there). Round: the depth profile along
       the shortest chord is that of a circle, :func:`chord_roundness` between
       ``min_roundness`` and ``max_roundness`` (a flat part reads near 0; a thin part in front
-      of a wider one, whose chord runs on over it, reads a step far above 1). Medians over
-      the frames. docs/joints.md ("Session 48").
+      of a wider one, whose chord runs on over it, reads a step far above 1). Where the
+      profile is flat (roundness below ``flat_roundness``) the silhouette's width says nothing
+      of the depth, and the joint stays. Medians over the frames. docs/joints.md
+      ("Session 48").
 
     The joint moves by the result along its rest-frame ray.
 
@@ -497,9 +500,10 @@ def view_depth_joints(frames: Sequence[np.ndarray], registered: np.ndarray, labe
         points' bounding-box diagonal).
     label_fraction
         Largest distance from an observed point to its registered point that labels it.
-    visible_fraction, min_roundness, max_roundness
+    visible_fraction, min_roundness, max_roundness, flat_roundness
         The ``"visible"`` rule's tolerances (above): front depths, fraction of the subject
-        size; the range of the roundness ratio (a circle within 30 % by default).
+        size; the range of the roundness ratio (a circle within 30 % by default); the ratio
+        below which the part is flat.
 
     Returns
     -------
@@ -574,7 +578,8 @@ def view_depth_joints(frames: Sequence[np.ndarray], registered: np.ndarray, labe
                 seen = np.abs(f_all - f_own) < visible_fraction * size
                 ratio = _nanmedian0(rnd, np.nan)
                 round_ = (ratio >= min_roundness) & (ratio <= max_roundness)
-            shift = np.where(seen & round_, med[0], shift)
+                flat = ratio < flat_roundness
+            shift = np.where(seen & round_, med[0], np.where(flat, 0.0, shift))
     else:
         shift = med[0]
     if direction == "back":
