@@ -14,6 +14,7 @@ from pointrig.view import (
     chord_depth_offset,
     chord_half_width,
     chord_roundness,
+    image_coordinates,
     in_view,
     is_single_view,
     two_layer_fraction,
@@ -339,8 +340,6 @@ def _plate(depth: float, half: float, pixel: float = 1.0 / 525) -> np.ndarray:
 
 
 def test_chord_roundness_tells_a_round_part_from_a_flat_one():
-    from pointrig.view import image_coordinates
-
     axis, band, gap = np.array([0.0, 0.0, 1.0]), 4.5 / 525, 6.0 / 525
     cyl = _ray_cast_cylinder(2.0, 0.08, (-0.3, 0.3))
     uv, z = image_coordinates(cyl, np.zeros(3), axis)
