@@ -381,15 +381,6 @@ def chord_depth_offset(points: np.ndarray, joint: np.ndarray, camera: np.ndarray
         ``nan`` if no point lies near the joint's pixel or no chord passes through it.
     """
     uv, z = image_coordinates(points, camera, axis)
-    return _projected_chord_offset(uv, z, joint, camera, axis, radius, band, gap,
-                                   front_quantile)
-
-
-def _projected_chord_offset(uv: np.ndarray, z: np.ndarray, joint: np.ndarray,
-                            camera: np.ndarray, axis: np.ndarray, radius: float, band: float,
-                            gap: float, front_quantile: float = 0.2) -> float:
-    """:func:`chord_depth_offset` on points already projected by :func:`image_coordinates`
-    (``uv (n, 2)``, ``z (n,)``), so that a frame is projected once for all its joints."""
     front, half, _ = _projected_chord_parts(uv, z, joint, camera, axis, radius, band, gap,
                                             front_quantile)
     return front + half
@@ -399,10 +390,12 @@ def _projected_chord_parts(uv: np.ndarray, z: np.ndarray, joint: np.ndarray,
                            camera: np.ndarray, axis: np.ndarray, radius: float, band: float,
                            gap: float, front_quantile: float = 0.2, roundness: bool = False
                            ) -> tuple[float, float, float]:
-    """The parts of :func:`chord_depth_offset` on projected points: ``(front, half,
-    round)``, the front surface's offset from the joint along its ray (metres, positive
-    behind the joint), the chord's half-width (metres along the ray) and, if ``roundness``,
-    :func:`chord_roundness` at the joint's pixel (else ``nan``). ``nan`` where undefined."""
+    """The parts of :func:`chord_depth_offset` on points already projected by
+    :func:`image_coordinates` (``uv (n, 2)``, ``z (n,)``, so that a frame is projected once for
+    all its joints): ``(front, half, round)``, the front surface's offset from the joint along
+    its ray (metres, positive behind the joint), the chord's half-width (metres along the ray)
+    and, if ``roundness``, :func:`chord_roundness` at the joint's pixel (else ``nan``). ``nan``
+    where undefined."""
     nan = float("nan")
     juv, jz = image_coordinates(np.asarray(joint, dtype=np.float64)[None], camera, axis)
     if not jz[0] > 0 or len(z) == 0:
