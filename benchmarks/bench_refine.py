@@ -127,9 +127,29 @@ FRESH: dict[str, tuple[str, dict]] = {
     "f_hand_y-15": ("hand", {"seed": 39, "yaw": -15}),
 }
 
+#: A third held-back set (session 49): more views and seeds of the rigs' clips, weighted to
+#: the glTF rigs the held-out measurement uses (seeds 41-51): three greenman clips, the girl's
+#: idle and run, rigged_figure, plus a quadruped and a walking human. It first measured
+#: ``[structure] merge_displacement`` (docs/structure.md "Session 49").
+SPREAD: dict[str, tuple[str, dict]] = {
+    "s_gm_attack_41": (str(_MODELS / "greenman.glb"),
+                       {"seed": 41, "clip": "3_attack", "yaw": -10}),
+    "s_gm_attack_42": (str(_MODELS / "greenman.glb"), {"seed": 42, "clip": "3_attack", "yaw": 30}),
+    "s_gm_move_43": (str(_MODELS / "greenman.glb"), {"seed": 43, "clip": "2_move", "yaw": 10}),
+    "s_gm_move_44": (str(_MODELS / "greenman.glb"), {"seed": 44, "clip": "2_move", "yaw": -35}),
+    "s_gm_idle_45": (str(_MODELS / "greenman.glb"), {"seed": 45, "clip": "1_idle", "yaw": -10}),
+    "s_girl_idle_46": (str(_MODELS / "girl.glb"), {"seed": 46, "clip": "IdleTrack", "yaw": 10}),
+    "s_girl_idle_47": (str(_MODELS / "girl.glb"), {"seed": 47, "clip": "IdleTrack", "yaw": -45}),
+    "s_girl_run_48": (str(_MODELS / "girl.glb"), {"seed": 48, "clip": "RunTrack", "yaw": -10}),
+    "s_rigged_49": (str(_MODELS / "rigged_figure.glb"), {"seed": 49, "yaw": -10}),
+    "s_quadruped_50": ("quadruped", {"seed": 50, "yaw": -30}),
+    "s_human_walk_51": ("human", {"seed": 51, "walk": 2.0, "yaw": 20}),
+}
+
 #: The sequence sets by name (``--set`` of ``bench_suite.py``).
 SETS: dict[str, dict[str, tuple[str, dict]]] = {"suite": SEQUENCES, "validation": VALIDATION,
-                                                "fresh": FRESH, "limbs": LIMBS}
+                                                "fresh": FRESH, "spread": SPREAD,
+                                                "limbs": LIMBS}
 
 
 def _synth(source: str, kw: dict, frames: int):
@@ -142,8 +162,8 @@ def _synth(source: str, kw: dict, frames: int):
 def add_set_option(ap: argparse.ArgumentParser) -> None:
     """Add ``--set`` (a key of :data:`SETS`, default ``"suite"``) to a benchmark's parser."""
     ap.add_argument("--set", default="suite", choices=sorted(SETS),
-                    help="the sequences: the suite (default), the held-back validation set or "
-                         "the single limbs")
+                    help="the sequences: the suite (default), the held-back validation, fresh "
+                         "and spread sets, or the single limbs")
 
 
 def add_variant_options(ap: argparse.ArgumentParser) -> None:

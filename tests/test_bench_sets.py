@@ -27,14 +27,16 @@ def test_validation_set_is_disjoint_from_the_suite() -> None:
     assert not set(suite) & set(val)
     assert not {_key(*v) for v in suite.values()} & {_key(*v) for v in val.values()}
     assert not {kw["seed"] for _, kw in suite.values()} & {kw["seed"] for _, kw in val.values()}
-    assert set(bench_refine.SETS) == {"suite", "validation", "fresh", "limbs"}
+    assert set(bench_refine.SETS) == {"suite", "validation", "fresh", "spread", "limbs"}
 
 
-def test_fresh_set_is_disjoint_from_the_suite_and_the_validation_set() -> None:
-    """The second held-back set shares no name, (source, keywords) pair or seed with the suite
-    or the validation set."""
-    fresh = bench_refine.FRESH
-    for other in (bench_refine.SEQUENCES, bench_refine.VALIDATION):
+@pytest.mark.parametrize("held", ["fresh", "spread"])
+def test_later_held_back_sets_are_disjoint_from_the_earlier_sets(held: str) -> None:
+    """The second and third held-back sets share no name, (source, keywords) pair or seed with
+    the suite, the validation set or each other."""
+    fresh = bench_refine.SETS[held]
+    earlier = {"fresh": ("suite", "validation"), "spread": ("suite", "validation", "fresh")}
+    for other in (bench_refine.SETS[k] for k in earlier[held]):
         assert not set(fresh) & set(other)
         assert not {_key(*v) for v in fresh.values()} & {_key(*v) for v in other.values()}
         assert not ({kw["seed"] for _, kw in fresh.values()}
@@ -42,12 +44,13 @@ def test_fresh_set_is_disjoint_from_the_suite_and_the_validation_set() -> None:
 
 
 @pytest.mark.parametrize("name", sorted(bench_refine.VALIDATION) + sorted(bench_refine.FRESH)
-                         + sorted(bench_refine.LIMBS))
+                         + sorted(bench_refine.SPREAD) + sorted(bench_refine.LIMBS))
 def test_validation_entries_name_a_figure_or_a_rig(name: str) -> None:
-    """Each source (of the validation, fresh and limbs sets) is a procedural figure or a .glb
-    under the shared models folder, and the keywords are ones the benchmark's synthesis
+    """Each source (of the validation, fresh, spread and limbs sets) is a procedural figure or
+    a .glb under the shared models folder, and the keywords are ones the benchmark's synthesis
     takes."""
-    source, kw = {**bench_refine.VALIDATION, **bench_refine.FRESH, **bench_refine.LIMBS}[name]
+    source, kw = {**bench_refine.VALIDATION, **bench_refine.FRESH, **bench_refine.SPREAD,
+                  **bench_refine.LIMBS}[name]
     if source.endswith(".glb"):
         assert Path(source).parent == bench_refine._MODELS
     else:
