@@ -146,9 +146,13 @@ SPREAD: dict[str, tuple[str, dict]] = {
     "s_human_walk_51": ("human", {"seed": 51, "walk": 2.0, "yaw": 20}),
 }
 
+#: Every figure and rig sequence of the four sets above (50; ``--set all``, ~35 min): one mean
+#: to judge a default by, most of it on sequences no change was chosen on.
+ALL: dict[str, tuple[str, dict]] = {**SEQUENCES, **VALIDATION, **FRESH, **SPREAD}
+
 #: The sequence sets by name (``--set`` of ``bench_suite.py``).
 SETS: dict[str, dict[str, tuple[str, dict]]] = {"suite": SEQUENCES, "validation": VALIDATION,
-                                                "fresh": FRESH, "spread": SPREAD,
+                                                "fresh": FRESH, "spread": SPREAD, "all": ALL,
                                                 "limbs": LIMBS}
 
 
@@ -163,7 +167,7 @@ def add_set_option(ap: argparse.ArgumentParser) -> None:
     """Add ``--set`` (a key of :data:`SETS`, default ``"suite"``) to a benchmark's parser."""
     ap.add_argument("--set", default="suite", choices=sorted(SETS),
                     help="the sequences: the suite (default), the held-back validation, fresh "
-                         "and spread sets, or the single limbs")
+                         "and spread sets, all four, or the single limbs")
 
 
 def add_variant_options(ap: argparse.ArgumentParser) -> None:

@@ -27,7 +27,7 @@ def test_validation_set_is_disjoint_from_the_suite() -> None:
     assert not set(suite) & set(val)
     assert not {_key(*v) for v in suite.values()} & {_key(*v) for v in val.values()}
     assert not {kw["seed"] for _, kw in suite.values()} & {kw["seed"] for _, kw in val.values()}
-    assert set(bench_refine.SETS) == {"suite", "validation", "fresh", "spread", "limbs"}
+    assert set(bench_refine.SETS) == {"suite", "validation", "fresh", "spread", "all", "limbs"}
 
 
 @pytest.mark.parametrize("held", ["fresh", "spread"])
@@ -106,3 +106,13 @@ def test_chosen_gives_the_set_and_its_selected_names() -> None:
     assert seqs is bench_refine.SEQUENCES and only == set()
     with pytest.raises(SystemExit):
         bench_refine.chosen(ap, ap.parse_args(["--only", "v_hand"]))
+
+
+def test_all_is_the_four_figure_sets_together() -> None:
+    """``--set all`` holds every sequence of the suite, validation, fresh and spread sets with
+    its own keywords, and nothing else (their names are disjoint, so none is lost)."""
+    parts = ("suite", "validation", "fresh", "spread")
+    assert sum(len(bench_refine.SETS[k]) for k in parts) == len(bench_refine.ALL)
+    for k in parts:
+        for name, entry in bench_refine.SETS[k].items():
+            assert bench_refine.ALL[name] == entry
