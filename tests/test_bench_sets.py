@@ -34,12 +34,12 @@ def test_validation_set_is_disjoint_from_the_suite() -> None:
 def test_later_held_back_sets_are_disjoint_from_the_earlier_sets(held: str) -> None:
     """The second and third held-back sets share no name, (source, keywords) pair or seed with
     the suite, the validation set or each other."""
-    fresh = bench_refine.SETS[held]
+    later = bench_refine.SETS[held]
     earlier = {"fresh": ("suite", "validation"), "spread": ("suite", "validation", "fresh")}
     for other in (bench_refine.SETS[k] for k in earlier[held]):
-        assert not set(fresh) & set(other)
-        assert not {_key(*v) for v in fresh.values()} & {_key(*v) for v in other.values()}
-        assert not ({kw["seed"] for _, kw in fresh.values()}
+        assert not set(later) & set(other)
+        assert not {_key(*v) for v in later.values()} & {_key(*v) for v in other.values()}
+        assert not ({kw["seed"] for _, kw in later.values()}
                     & {kw["seed"] for _, kw in other.values()})
 
 
