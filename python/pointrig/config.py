@@ -297,7 +297,7 @@ class StructureConfig:
     # clips: 5-8 deg); exact-motion recall 0.710 -> 0.754 on 25 sequences (docs/structure.md,
     # session 8). merge_displacement is below the evaluation's 1.5 % because a cluster's reach
     # is shorter than its final part's: 0.015 folded idle knees that the 1.5 % test scores
-    # (docs/structure.md, session 49: girl IdleTrack recall 0.0-0.2 -> 0.4-0.8 on 5 of 6 views)
+    # (docs/structure.md, session 49: girl IdleTrack recall 0.0-0.2 -> 0.4-0.8 on 4 of 5 views)
     merge_rule: str = "both"
     merge_displacement: float = 0.01
     merge_percentile: float = 95.0
