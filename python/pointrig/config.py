@@ -482,11 +482,10 @@ class JointsConfig:
     # joint's own bone is what the camera sees at its pixel and the chord's depth profile is
     # round, no move where it is flat, the consensus elsewhere (session 48)); depth_direction:
     # "both" or "back" (never towards the camera). Suite + validation
-    # (benchmarks/bench_joint_depth.py): glTF rigs
-    # (17 sequences) recall 0.669 (off) -> 0.733 (consensus) -> 0.772 (visible), procedural
-    # figures (13) 0.976 -> 0.976 -> 0.976 ("all" alone: 0.781 but 0.929).
-    # Single-view input only: off wherever [structure]'s view-depth correction is
-    # (single_view = "no", view_depth_quantile = 0, camera not in view)
+    # (benchmarks/bench_joint_depth.py): glTF rigs (17 sequences) recall 0.669 (off) -> 0.733
+    # (consensus) -> 0.772 (visible), procedural figures (13) 0.976 -> 0.976 -> 0.976 ("all"
+    # alone: 0.781 but 0.929). Single-view input only: off wherever [structure]'s view-depth
+    # correction is (single_view = "no", view_depth_quantile = 0, camera not in view)
     joint_depth: str = "chord"
     depth_points: str = "visible"
     depth_direction: str = "both"

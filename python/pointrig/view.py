@@ -409,11 +409,10 @@ def _projected_chord_parts(uv: np.ndarray, z: np.ndarray, joint: np.ndarray,
     cos = float(ray @ np.asarray(axis, dtype=np.float64)) / float(np.linalg.norm(ray))
     front = float(np.quantile(z[near], front_quantile))
     chord = _shortest_chord(uv, juv[0], band, gap, CHORD_DIRECTIONS)
-    half = np.inf if chord is None else 0.5 * (chord[1] - chord[0])
     rnd = _profile_roundness(uv, z, juv[0], chord, band, PROFILE_INNER) if roundness else nan
-    if not np.isfinite(half):
+    if chord is None:
         return (front - float(jz[0])) / cos, nan, rnd
-    return (front - float(jz[0])) / cos, half * front / cos, rnd
+    return (front - float(jz[0])) / cos, 0.5 * (chord[1] - chord[0]) * front / cos, rnd
 
 
 def _nanmedian0(x: np.ndarray, empty: float) -> np.ndarray:
