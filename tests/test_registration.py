@@ -217,7 +217,8 @@ def test_fit_rest_candidates_are_the_visible_frame_and_unlike_poses() -> None:
             register_sequence(PointSequence(frames), RegistrationConfig(rest_frame="fit", **bad))
 
 
-def test_fit_rest_frame_keeps_the_registration_that_explains_the_frames_best() -> None:
+def test_fit_rest_frame_keeps_the_registration_that_explains_the_frames_best(
+        tmp_path: Path) -> None:
     """``rest_frame = "fit"`` returns exactly the registration from its chosen candidate (the
     same as asking for that frame), and that candidate's mean misfit is the smallest of all
     candidates' (no margin), each candidate registered on its own as the oracle."""
@@ -237,7 +238,10 @@ def test_fit_rest_frame_keeps_the_registration_that_explains_the_frames_best() -
             np.testing.assert_allclose(fit.points, res.points, atol=1e-9)
     assert fit.params["rest_frame_index"] == min(scores, key=scores.get)
     assert fit.params["rest_candidates_misfit"] == pytest.approx(
-        {int(c): v for c, v in scores.items()}, rel=1e-9)
+        {str(c): v for c, v in scores.items()}, rel=1e-9)
+    # the checkpoint gives back the same params (JSON keys are strings)
+    fit.save(tmp_path / "registration.npz")
+    assert RegistrationResult.load(tmp_path / "registration.npz").params == fit.params
 
 
 def test_middle_rest_frame_registers_both_ways() -> None:

@@ -411,8 +411,9 @@ def register_sequence(
     the other (``tests/test_determinism.py``).
     With ``rest_frame = "fit"`` the sequence is registered from each of
     :func:`rest_candidates` and the result whose points explain the frames best
-    (:func:`sequence_misfit`) is returned; its ``params["rest_candidates_misfit"]`` maps each
-    candidate to its misfit (metres).
+    (:func:`sequence_misfit`) is returned, unless it beats the first candidate (the "visible"
+    frame) by no more than ``rest_fit_margin``; its ``params["rest_candidates_misfit"]`` maps
+    each candidate (the frame index as a string, as in JSON) to its misfit (metres).
 
     Parameters
     ----------
@@ -461,7 +462,10 @@ def register_sequence(
     best = results[i]
     log.info("rest frame: candidates %s, mean misfit %s cm; chose %d",
              candidates, [round(100 * v, 3) for v in scores], candidates[i])
-    best.params["rest_candidates_misfit"] = {int(c): float(v) for c, v in zip(candidates, scores)}
+    # keys as strings, as the JSON of the checkpoint and skeleton.json hold them (a saved and
+    # reloaded result has the same params)
+    best.params["rest_candidates_misfit"] = {str(int(c)): float(v)
+                                             for c, v in zip(candidates, scores)}
     return best
 
 
