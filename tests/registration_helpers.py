@@ -81,3 +81,41 @@ def capsule_arm(n_frames: int = 10, step_deg: float = 8.0, n: int = 1500, seed: 
         vis = nrm[:, 2] < 0  # camera at origin looking along +z: facing points have n_z < 0
         frames.append(np.ascontiguousarray(p[vis]))
     return frames, np.stack(truth)
+
+
+def scissor_legs(n_frames: int = 12, amp_deg: float = 30.0, n: int = 2000, gap: float = 0.0,
+                 seed: int = 0) -> tuple[list[np.ndarray], np.ndarray]:
+    """A hip block with two capsule legs side by side, seen from +z: the legs swing apart in
+    the image plane (a V of up to ``2 amp_deg``) and close at the middle frame, where their
+    surfaces are ``gap`` metres apart (0: touching, the rest-frame contact of a walking
+    figure whose legs pass each other).
+
+    Returns ``(frames, truth)``: the seen points per frame ``(n, 3)`` with 2 mm noise and the
+    same material points without noise ``(F, n, 3)``, metres (the camera at the origin, the
+    legs 2 m away).
+    """
+    rng = np.random.default_rng(seed)
+    rad, length = 0.05, 0.5
+    nb = n // 4
+    nl = (n - nb) // 2
+
+    def leg(m: int) -> np.ndarray:  # the half of a capsule that faces the camera (-z)
+        u = rng.uniform(0.0, 1.0, m)
+        a = rng.uniform(np.pi, 2.0 * np.pi, m)
+        return np.stack([rad * np.cos(a), -u * length, rad * np.sin(a)], 1)
+
+    left, right = leg(nl), leg(n - nb - nl)
+    block = np.stack([rng.uniform(-0.15, 0.15, nb), rng.uniform(0.0, 0.2, nb),
+                      np.full(nb, -0.06)], 1)
+    mid = (n_frames - 1) / 2.0
+    truth = []
+    for t in range(n_frames):
+        th = np.deg2rad(amp_deg) * abs(t - mid) / max(mid, 1.0)
+        c, s = np.cos(th), np.sin(th)
+        rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        a = left @ rz + [-(rad + gap / 2.0), 0.0, 0.0]  # turned by -th
+        b = right @ rz.T + [rad + gap / 2.0, 0.0, 0.0]  # turned by +th
+        truth.append(np.concatenate([block, a, b]) + [0.0, 0.0, 2.0])
+    truth_arr = np.stack(truth)
+    frames = [p + rng.normal(scale=0.002, size=p.shape) for p in truth_arr]
+    return frames, truth_arr

@@ -409,7 +409,7 @@ def register_sequence(
     neighbour's own pose, ``predict_check``). The two chains run side by side on two threads
     once the rest frame and the frame after it are done; the result is the same as one after
     the other (``tests/test_determinism.py``).
-    With ``rest_frame = "fit"`` the sequence is registered from each of
+    With ``rest_frame = "fit"`` (the default) the sequence is registered from each of
     :func:`rest_candidates` and the result whose points explain the frames best
     (:func:`sequence_misfit`) is returned, unless it beats the first candidate (the "visible"
     frame) by no more than ``rest_fit_margin``; its ``params["rest_candidates_misfit"]`` maps
