@@ -23,7 +23,7 @@ from pointrig.structure import (
     write_structure_outputs,
 )
 from pointrig.kinematics import joint_trajectories
-from structure_helpers import make_sequence
+from structure_helpers import make_sequence, purity
 
 
 def _kabsch_oracle(src, dst, w):
@@ -285,8 +285,6 @@ def test_small_swings_of_long_limbs_are_kept_by_the_displacement_gate(seed):
     truth: the figure's parts, purity >= 0.9). Sub-degree swings (millimetres) still merge.
     The angle rule is measured against the rest pose here (``merge_reference="rest"``): the
     default range reference sees up to twice the amplitude and keeps these swings as well."""
-    from structure_helpers import purity
-
     seq = make_sequence("arm", seed=seed, noise=0.001, amp_deg=(6.0, 8.0))
     rest, pts, truth, fig, R, T = (seq[k] for k in ("rest", "points", "labels", "figure", "R",
                                                     "T"))
@@ -332,8 +330,6 @@ def test_idle_sized_swings_are_kept_at_the_default_displacement(amp, seed):
     ``merge_displacement`` (0.01; purity >= 0.9 against the oracle's parts). The gate measures
     a cluster's reach, shorter than its final part's while the limb is still in pieces, so a
     gate at the evaluation's own 1.5 % folds some of them (docs/structure.md, session 49)."""
-    from structure_helpers import purity
-
     seq = make_sequence("arm", seed=seed, noise=0.001, amp_deg=amp)
     rest, pts, truth, fig, R, T = (seq[k] for k in ("rest", "points", "labels", "figure", "R",
                                                     "T"))
