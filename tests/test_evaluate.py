@@ -14,6 +14,7 @@ from pointrig.evaluate import (
     evaluate,
     evaluate_files,
     load_prediction,
+    pivot_errors,
     scorable_joints,
     subject_size,
 )
@@ -245,6 +246,54 @@ def test_articulation_through_an_unskinned_bone():
     mask, _, sw = scorable_joints(joints, parents, bone_rotations=R, bone_translations=T,
                                   rest_surface=rest, **kw)
     assert mask.tolist() == [False, False, False, True] and sw[3] > 0.05
+
+
+def test_pivot_errors_of_joints_at_their_turning_points():
+    """The upper arm turns against the torso about the shoulder's hinge axis, where its joint
+    lies; the forearm is rigid to the upper arm (no relative motion: its own rest position).
+    Both pivot errors vanish; roots and parts without samples read nan."""
+    joints, parents, _surf, labels, R, T, _rest = _lbs_chain()
+    pe = pivot_errors(joints, parents, R, T, labels)
+    assert np.isnan(pe[0])
+    assert pe[2] < 1e-9 and pe[3] < 1e-9
+
+
+def test_pivot_error_of_a_joint_held_off_its_turning_point():
+    """The upper arm loses its skin: the forearm (skinned) hangs from it and turns against the
+    torso about the shoulder's hinge axis (z through the shoulder), while its joint is the
+    elbow, 0.3 m from that axis. Closed form: a joint at the pivot (the point of the axis
+    nearest the elbow, the shoulder) is 0.3 m from the elbow in every frame. The report flags
+    the joint as off pivot when the threshold is below that."""
+    joints, parents, surf, labels, R, T, rest = _lbs_chain()
+    labels = np.where(labels == 2, 3, labels)
+    pe = pivot_errors(joints, parents, R, T, labels)
+    assert pe[3] == pytest.approx(0.3, abs=1e-9)
+    names = ["root", "torso", "upper", "fore"]
+    kw = dict(gt_names=names, surface=surf, surface_labels=labels, bone_rotations=R,
+              bone_translations=T, rest_surface=rest,
+              skinned=np.array([False, True, False, True]))
+    rep = evaluate(joints[:, [3]], joints, parents, threshold=0.2, **kw)
+    assert rep.n_scorable == 1 and rep.n_off_pivot == 1 and rep.recall == 1.0
+    assert rep.rows[3].pivot_error == pytest.approx(0.3, abs=1e-9)
+    assert "off pivot (30.0 cm)" in rep.format_table()
+    assert rep.to_dict()["n_off_pivot"] == 1
+    assert evaluate(joints[:, [3]], joints, parents, threshold=0.35, **kw).n_off_pivot == 0
+
+
+def test_pivot_error_of_a_sliding_joint():
+    """A forearm animated by translation along the upper arm (no relative turn): the best
+    joint moves half with each part, so its error is half the slide, mean over frames."""
+    joints, parents, _surf, labels, R, T, _rest = _lbs_chain()
+    F = len(R)
+    slide = 0.4 * np.sin(np.linspace(0.0, 3.0, F))
+    d = np.einsum("fij,j->fi", R[:, 2], np.array([1.0, 0.0, 0.0])) * slide[:, None]
+    T = T.copy()
+    T[:, 3] += d
+    joints = joints.copy()
+    joints[:, 3] += d
+    pe = pivot_errors(joints, parents, R, T, labels)
+    assert pe[3] == pytest.approx(0.5 * np.abs(slide).mean(), rel=1e-6)
+    assert pe[2] < 1e-9
 
 
 def test_swing_source_errors(tmp_path):
