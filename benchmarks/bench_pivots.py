@@ -41,14 +41,14 @@ def pivot_row(syn: Any, joint_positions: np.ndarray | None = None) -> dict[str, 
     scorable joints; nan if there are none)."""
     P = syn.gt_joints[:, :1] if joint_positions is None else joint_positions
     r = score_joints(P, syn)
-    off = [(row.name, row.pivot_error) for row in r.rows
-           if row.scorable and row.pivot_error >= r.threshold]
-    on = [row for row in r.rows if row.scorable and not row.pivot_error >= r.threshold]
-    out: dict[str, Any] = {"n_scorable": r.n_scorable, "off": off, "threshold": r.threshold}
+    off = r.off_pivot
+    out: dict[str, Any] = {"n_scorable": r.n_scorable, "threshold": r.threshold,
+                           "off": [(row.name, row.pivot_error)
+                                   for row, o in zip(r.rows, off) if o]}
     if joint_positions is not None:
+        on = [row.matched >= 0 for row, o in zip(r.rows, off) if row.scorable and not o]
         out["recall"] = r.recall
-        out["recall_on"] = (float(np.mean([row.matched >= 0 for row in on])) if on
-                            else float("nan"))
+        out["recall_on"] = float(np.mean(on)) if on else float("nan")
     return out
 
 

@@ -115,9 +115,19 @@ class EvalReport:
     pred_names: list[str] = field(default_factory=list)
     #: how the articulation test got its motions: "bones", "surface" or "" (no surface)
     swing_source: str = ""
-    #: scorable joints whose pivot error (:func:`pivot_errors`) is at or above the threshold:
-    #: the rig puts them where no joint at a pivot of the rig's own parts can match them
-    n_off_pivot: int = 0
+
+    @property
+    def off_pivot(self) -> np.ndarray:
+        """``(J,)`` bool: scorable joints whose pivot error (:func:`pivot_errors`) is at or
+        above the threshold; the rig puts them where no joint at a pivot of the rig's own
+        parts can match them."""
+        return np.array([r.scorable and r.pivot_error >= self.threshold for r in self.rows],
+                        dtype=bool)
+
+    @property
+    def n_off_pivot(self) -> int:
+        """Number of :attr:`off_pivot` joints."""
+        return int(self.off_pivot.sum())
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict (NaN -> None)."""
@@ -153,14 +163,14 @@ class EvalReport:
             "",
             f"{'joint':<18} {'scored':<7} {'matched':<14} {'raw cm':>8} {'norm cm':>8}  note",
         ]
-        for r in self.rows:
+        for r, off in zip(self.rows, self.off_pivot):
             mname = (self.pred_names[r.matched] if 0 <= r.matched < len(self.pred_names)
                      else "-")
             raw = f"{r.raw_error * cm:8.2f}" if np.isfinite(r.raw_error) else f"{'-':>8}"
             nrm = (f"{r.normalized_error * cm:8.2f}" if np.isfinite(r.normalized_error)
                    else f"{'-':>8}")
             note = "" if r.reason == "ok" else r.reason
-            if r.scorable and r.pivot_error >= self.threshold:
+            if off:
                 note = f"off pivot ({r.pivot_error * cm:.1f} cm)"
             lines.append(f"{r.name[:18]:<18} {('yes' if r.scorable else 'no'):<7} "
                          f"{mname[:14]:<14} {raw} {nrm}  {note}")
@@ -585,7 +595,6 @@ def evaluate(pred_joints: np.ndarray, gt_joints: np.ndarray, gt_parents: np.ndar
         threshold=tau, subject_size=s, n_pred=P, n_gt=J, n_scorable=n_sc, n_matched=n_match,
         n_frames=F, scorable=mask, rows=rows, pred_names=pred_names,
         swing_source=source if have_surface else "",
-        n_off_pivot=int(np.sum(mask & (pivot >= tau))),
     )
 
 
