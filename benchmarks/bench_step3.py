@@ -5,8 +5,11 @@ to the final step 3 (the cleaned frames, the refined registration's rest and reg
 the final step-2 structure, the rest frame) are pickled to ``--cache DIR``; later runs load
 them. Each variant (a JSON object of :class:`pointrig.config.JointsConfig` overrides, ``{}`` =
 the defaults) then runs :func:`pointrig.joints.learn_joints` alone, 10-20 s a sequence instead
-of 50-120 s for the whole pipeline. The skeleton (bones, tree) is the same for every variant,
-so recall and precision change only through the matching.
+of 50-120 s for the whole pipeline, followed by the pipeline's own output stage
+(:func:`pointrig.pipeline.output_skeleton`: output tree, joint-depth pass, bone rolls; before
+session 52 the joint-depth pass was missing here). The skeleton (bones, tree) is the same for
+every variant, so recall and precision change only through the matching. The default variant
+reproduces the pipeline's cached output; the largest joint difference is printed as a check.
 
 Prints per sequence and variant recall / precision, raw / normalised error (cm) and the *depth
 bias*: the matched joints' mean signed offset from the truth along the camera ray (cm,
@@ -48,10 +51,9 @@ from pointrig.config import (  # noqa: E402
     apply_overrides,
 )
 from pointrig.joints import learn_joints  # noqa: E402
-from pointrig.pipeline import build_skeleton, extract  # noqa: E402
+from pointrig.pipeline import extract, output_skeleton  # noqa: E402
 from pointrig.preprocess import remove_sparse_frames  # noqa: E402
 from pointrig.skeleton import Skeleton  # noqa: E402
-from pointrig.structure import output_tree  # noqa: E402
 
 
 def cached_inputs(name: str, syn: Any, cache: Path) -> dict[str, Any]:
@@ -82,16 +84,18 @@ def cached_inputs(name: str, syn: Any, cache: Path) -> dict[str, Any]:
 def step3_skeleton(d: dict[str, Any], structure: Any, joints_cfg: JointsConfig,
                    structure_cfg: StructureConfig) -> tuple[Skeleton, float]:
     """Step 3 on the cached inputs ``d`` (:func:`cached_inputs`) with ``structure``, and the
-    skeleton as the pipeline outputs it (re-rooted by :func:`pointrig.structure.output_tree`);
+    skeleton as the pipeline outputs it (:func:`pointrig.pipeline.output_skeleton`: the output
+    tree, the joint-depth pass on the cached frames and registration, the bones' rolls);
     returns it and step 3's seconds."""
     t0 = time.perf_counter()
     jr = learn_joints(d["frames"], d["rest"], d["regpts"], structure, joints_cfg,
                       rest_index=d["rest_index"])
     secs = time.perf_counter() - t0
     labels = np.argmax(jr.weights, 1)
-    parent, joints = output_tree(d["rest"], labels, structure.bone_parent, jr.joints_rest,
-                                 structure_cfg, structure.view_camera)
-    return build_skeleton(d["rest"], parent, joints, jr.R, jr.T, jr.weights, labels), secs
+    cfg = PipelineConfig(structure=structure_cfg, joints=joints_cfg)
+    return output_skeleton(d["rest"], labels, structure.bone_parent, jr.joints_rest, jr.R,
+                           jr.T, jr.weights, cfg, structure.view_camera,
+                           observed=(d["frames"], d["regpts"])), secs
 
 
 def summary(rows: dict[Any, list[tuple[float, ...]]], what: str
@@ -104,6 +108,16 @@ def summary(rows: dict[Any, list[tuple[float, ...]]], what: str
     print(f"\nmeans over {len(ok)} sequences (errors over the {int(ok.sum())} where every "
           f"{what} matches a joint):")
     return arr, ok
+
+
+def pipeline_gap(joint_positions: np.ndarray, pipeline_positions: np.ndarray) -> float:
+    """Largest distance (metres) between the joints ``(F, J, 3)`` of a rerun and those the
+    whole pipeline wrote (``default_P`` of the cache); ``inf`` if the skeletons differ in
+    shape. A default-config rerun of step 3 on the cached inputs reproduces the pipeline's
+    output, so anything above rounding means the cache is stale or the output stage differs."""
+    if joint_positions.shape != pipeline_positions.shape:
+        return float("inf")
+    return float(np.linalg.norm(joint_positions - pipeline_positions, axis=-1).max())
 
 
 def depth_bias(joint_positions: np.ndarray, syn: Any, report: Any) -> float:
@@ -134,6 +148,7 @@ def main(argv: list[str]) -> int:
     rows: dict[int, list[tuple[float, ...]]] = {k: [] for k in range(len(variants))}
     print(f"{'sequence':<24} " + " | ".join(
         f"variant {k}: rec/prec raw norm depth (s)" for k in range(len(variants))))
+    gap: list[float] = []
     for name, syn in suite(a.frames, only, sequences):
         d = cached_inputs(name, syn, Path(a.cache))
         st = d["structure"]
@@ -146,9 +161,14 @@ def main(argv: list[str]) -> int:
                             100 * db))
             cells.append(f"{r.recall:.2f}/{r.precision:.2f} {100 * r.raw_error:5.2f} "
                          f"{100 * r.normalized_error:5.2f} {100 * db:+5.2f} ({secs:3.0f})")
+            if cfg == JointsConfig():
+                gap.append(pipeline_gap(sk.joint_positions, d["default_P"]))
         print(f"{name:<24} " + " | ".join(cells), flush=True)
     if not rows[0]:
         return 0
+    if gap:
+        print(f"\nthe default variant against the pipeline's cached output: largest joint "
+              f"difference {1000 * max(gap):.3f} mm over {len(gap)} sequences")
     arr, ok = summary(rows, "variant")
     for k, v in arr.items():
         print(f"variant {k}: recall {v[:, 0].mean():.3f} precision {v[:, 1].mean():.3f} "

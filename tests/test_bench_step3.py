@@ -33,3 +33,17 @@ def test_depth_bias_is_the_mean_offset_along_the_camera_ray() -> None:
     assert abs(depth_bias(pred, syn, rep) - depth.mean()) < 1e-12
     none = evaluate(pred[:, 2:] + 5.0, gt, np.array([-1, 0, 0]), threshold=0.2)
     assert np.isnan(depth_bias(pred[:, 2:] + 5.0, syn, none))
+
+
+def test_pipeline_gap_is_the_largest_joint_distance() -> None:
+    """The reproduction check: the largest per-joint, per-frame distance, inf on a shape
+    mismatch (another skeleton), 0 for the same joints."""
+    from bench_step3 import pipeline_gap
+
+    rng = np.random.default_rng(1)
+    P = rng.normal(size=(5, 4, 3))
+    Q = P.copy()
+    Q[3, 2] += np.array([0.0, 0.003, 0.004])  # 5 mm at one joint and frame
+    assert pipeline_gap(P, P) == 0.0
+    assert abs(pipeline_gap(Q, P) - 0.005) < 1e-12
+    assert pipeline_gap(P[:, :3], P) == float("inf")

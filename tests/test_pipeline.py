@@ -302,3 +302,41 @@ def test_joint_depth_is_off_on_input_that_is_not_one_view(demo_run, tmp_path):
         timings = json.loads((out / "skeleton.json").read_text())["params"]["timings_s"]
         assert "joint_depth" not in timings
     np.testing.assert_array_equal(runs["default"].rest_positions, runs["off"].rest_positions)
+
+
+def test_output_skeleton_is_what_extract_writes():
+    """The output stage is one function (:func:`pointrig.pipeline.output_skeleton`), so a
+    benchmark that reruns step 3 on cached inputs (benchmarks/bench_step3.py) scores what
+    ``extract`` outputs: applied to extract's own step-3 result and frames it gives the same
+    joints, tree and bone transforms exactly. Without the observed frames (a step-2 skeleton)
+    only the output tree is applied: same tree, joints moved along their camera rays only by
+    the depth pass (the demo's camera is the origin)."""
+    from pointrig.config import PipelineConfig
+    from pointrig.io import read_sequence
+    from pointrig.pipeline import extract, output_skeleton
+    from pointrig.preprocess import remove_sparse_frames
+
+    cfg = PipelineConfig()
+    seq = read_sequence(demo_path() / "frames")
+    res = extract(seq, cfg, None, pictures=False)
+    jr, st = res.joints, res.structure
+    final = res.refined_registration or res.registration
+    frames = remove_sparse_frames(seq, cfg.preprocess.sparse_neighbors,
+                                  cfg.preprocess.sparse_ratio)[0].frames
+    labels = np.argmax(jr.weights, axis=1)
+    args = (res.registration.rest_points, labels, st.bone_parent, jr.joints_rest, jr.R, jr.T,
+            jr.weights, cfg, st.view_camera)
+    timings: dict[str, float] = {}
+    again = output_skeleton(*args, observed=(frames, final.points), timings=timings)
+    np.testing.assert_array_equal(again.parents, res.skeleton.parents)
+    np.testing.assert_array_equal(again.joint_positions, res.skeleton.joint_positions)
+    np.testing.assert_array_equal(again.bone_rotations, res.skeleton.bone_rotations)
+    assert "joint_depth" in timings
+    tree_only = output_skeleton(*args)
+    np.testing.assert_array_equal(tree_only.parents, res.skeleton.parents)
+    moved = res.skeleton.rest_positions - tree_only.rest_positions
+    ray = tree_only.rest_positions / np.linalg.norm(tree_only.rest_positions, axis=1,
+                                                   keepdims=True)
+    along = np.sum(moved * ray, axis=1)
+    np.testing.assert_allclose(moved, along[:, None] * ray, atol=1e-9)
+    assert np.abs(along).max() > 1e-3

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -32,7 +32,7 @@ from .sequence import PointSequence, check_units
 from .skeleton import Skeleton
 from .view import view_depth_joints
 
-__all__ = ["ExtractResult", "extract", "build_skeleton"]
+__all__ = ["ExtractResult", "extract", "build_skeleton", "output_skeleton"]
 
 log = logging.getLogger(__name__)
 
@@ -90,6 +90,68 @@ def build_skeleton(rest_points: np.ndarray, bone_parent: np.ndarray, joints_rest
         labels=None if labels is None else inv[labels],
         bone_names=[f"b{j}" for j in non_root],
     )
+
+
+def output_skeleton(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np.ndarray,
+                    joints_rest: np.ndarray, R: np.ndarray, T: np.ndarray,
+                    weights: np.ndarray | None, config: PipelineConfig,
+                    view_camera: np.ndarray | None,
+                    observed: tuple[Sequence[np.ndarray], np.ndarray] | None = None,
+                    timings: dict[str, float] | None = None) -> Skeleton:
+    """The skeleton as :func:`extract` outputs it, from step 2's or step 3's bones.
+
+    The one place of the output stage, so that a benchmark that reruns step 3 on cached
+    inputs scores what the pipeline writes: the output tree (a leaf root moves to the body's
+    centre, :func:`pointrig.structure.output_tree`), then, after step 3 (``observed`` given),
+    the joints to their parts' axis depth along the camera ray (``[joints] joint_depth``,
+    :func:`pointrig.view.view_depth_joints`, docs/joints.md "Session 47") and the bones' rolls
+    (``[joints] bone_twist``, :func:`pointrig.kinematics.minimal_twist`), then
+    :func:`build_skeleton`.
+
+    Parameters
+    ----------
+    rest_points
+        ``(M, 3)`` rest points, metres.
+    labels
+        ``(M,)`` bone of each rest point.
+    bone_parent
+        ``(B,)`` parent bone, ``-1`` for the root.
+    joints_rest
+        ``(B, 3)`` rest-pose head joint of each bone, metres.
+    R, T
+        ``(F, B, 3, 3)`` and ``(F, B, 3)``: ``T_frame_rest`` of every bone per frame, metres.
+    weights
+        ``(M, B)`` skinning weights, or ``None``.
+    config
+        The pipeline's parameters (``structure`` and ``joints`` are read).
+    view_camera
+        ``(3,)`` camera position (metres) when the input is one view, else ``None`` (no depth
+        pass).
+    observed
+        After step 3: ``(frames, registered)``, the ``F`` observed clouds ``(N_t, 3)`` and the
+        final registration's ``(F, M, 3)`` points (metres) that the depth pass reads; ``None``
+        for a step-2 skeleton (output tree only).
+    timings
+        If given, the depth pass's seconds are stored under ``"joint_depth"``.
+    """
+    from . import structure as struct_mod
+
+    parent, joints_rest = struct_mod.output_tree(rest_points, labels, bone_parent, joints_rest,
+                                                 config.structure, view_camera)
+    if observed is not None and config.joints.joint_depth == "chord" \
+            and view_camera is not None:
+        t0 = time.perf_counter()
+        joints_rest, _ = view_depth_joints(
+            observed[0], observed[1], labels, parent, joints_rest, R, T, view_camera,
+            n_frames=config.joints.depth_frames, points=config.joints.depth_points,
+            direction=config.joints.depth_direction)
+        if timings is not None:
+            timings["joint_depth"] = time.perf_counter() - t0
+    if observed is not None and config.joints.bone_twist == "minimal":
+        R, T = minimal_twist(R, T, joints_rest, parent, rest_points, labels,
+                             config.joints.twist_min_elongation,
+                             config.joints.twist_min_roll_deg)
+    return build_skeleton(rest_points, parent, joints_rest, R, T, weights, labels)
 
 
 def extract(
@@ -218,24 +280,11 @@ def extract(
         result.joints = jr
         weights, labels = jr.weights, np.argmax(jr.weights, axis=1)
         joints_rest, R, T = jr.joints_rest, jr.R, jr.T
-    # the output tree (a leaf root moves to the body's centre), then the skeleton
-    parent, joints_rest = struct_mod.output_tree(reg.rest_points, labels, st.bone_parent,
-                                                 joints_rest, config.structure, st.view_camera)
-    if (stop_after == "joints" and config.joints.joint_depth == "chord"
-            and st.view_camera is not None):
-        # output joints to their parts' axis depth (docs/joints.md "Session 47")
-        t0 = time.perf_counter()
-        final = result.refined_registration or reg
-        joints_rest, _ = view_depth_joints(
-            seq.frames, final.points, labels, parent, joints_rest, R, T, st.view_camera,
-            n_frames=config.joints.depth_frames, points=config.joints.depth_points,
-            direction=config.joints.depth_direction)
-        timings["joint_depth"] = time.perf_counter() - t0
-    if stop_after == "joints" and config.joints.bone_twist == "minimal":
-        R, T = minimal_twist(R, T, joints_rest, parent, reg.rest_points, labels,
-                             config.joints.twist_min_elongation,
-                             config.joints.twist_min_roll_deg)
-    skel = build_skeleton(reg.rest_points, parent, joints_rest, R, T, weights, labels)
+    final = result.refined_registration or reg
+    skel = output_skeleton(reg.rest_points, labels, st.bone_parent, joints_rest, R, T, weights,
+                           config, st.view_camera,
+                           observed=(seq.frames, final.points) if stop_after == "joints"
+                           else None, timings=timings)
     result.skeleton = skel
 
     if out is not None:
