@@ -1,14 +1,19 @@
 """What step 2 on the registration costs after step 3: a ladder of exact-motion oracles.
 
 On the cached inputs of the default pipeline's final step 3 (``bench_step3.py --cache DIR``),
-step 2 runs four ways and step 3 (the default, on the real frames and the refined
-registration) after each; only the structure changes:
+step 2 runs six ways and step 3 (the default, on the real frames and the refined
+registration, then the pipeline's output stage) after each; only the structure changes:
 
 * ``registration``: step 2 on the registered points (the default pipeline);
 * ``exact labels``: the segmentation of step 2 run on the *exact* motion of the same rest
   points, with the tree, the bone motions and the joints from the registration
   (:func:`pointrig.structure.structure_from_labels`);
 * ``+ exact tree``: that segmentation and its tree, motions and joints from the registration;
+* ``+ exact joints``: segmentation, tree and joints of the exact motion's step 2, the bone
+  motions from the registration (step 3's tracker holds step 2's joints and starts from its
+  motions: this rung and the next tell which of the two costs more, session 52);
+* ``+ exact motions``: segmentation, tree and bone motions of the exact motion's step 2, the
+  joints from the registration;
 * ``exact step 2``: all of step 2 on the exact motion.
 
 The exact motion ties each rest point to its nearest exact surface sample of the rest frame
@@ -25,6 +30,7 @@ normalised error (cm) and the bone count per sequence and rung, then the means::
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -43,7 +49,8 @@ from bench_step3 import cached_inputs, step3_skeleton, summary  # noqa: E402
 from pointrig.config import PipelineConfig  # noqa: E402
 from pointrig.structure import extract_structure, structure_from_labels  # noqa: E402
 
-RUNGS = ("registration", "exact labels", "+ exact tree", "exact step 2")
+RUNGS = ("registration", "exact labels", "+ exact tree", "+ exact joints", "+ exact motions",
+         "exact step 2")
 
 
 def exact_points(rest: np.ndarray, surface: np.ndarray, rest_index: int) -> np.ndarray:
@@ -59,11 +66,16 @@ def structures(d: dict[str, Any], syn: Any, cfg: PipelineConfig) -> dict[str, An
     """Step 2 of each rung for the cached inputs ``d`` of sequence ``syn``."""
     Q, Y = d["rest"], np.ascontiguousarray(d["regpts"])
     exact = extract_structure(Q, exact_points(Q, syn.surface, d["rest_index"]), cfg.structure)
+    tree = structure_from_labels(Q, Y, exact.labels, cfg.structure, exact.bone_parent)
     return {
         "registration": d["structure"],
         "exact labels": structure_from_labels(Q, Y, exact.labels, cfg.structure),
-        "+ exact tree": structure_from_labels(Q, Y, exact.labels, cfg.structure,
-                                              exact.bone_parent),
+        "+ exact tree": tree,
+        # the same labels and tree, so the bones line up one to one
+        "+ exact joints": dataclasses.replace(tree, joints_rest=exact.joints_rest,
+                                              c_tilde=exact.c_tilde),
+        "+ exact motions": dataclasses.replace(exact, joints_rest=tree.joints_rest,
+                                               c_tilde=tree.c_tilde),
         "exact step 2": exact,
     }
 
@@ -97,7 +109,7 @@ def main(argv: list[str]) -> int:
         return 0
     arr, ok = summary(rows, "rung")
     for k, v in arr.items():
-        print(f"{k:<14} recall {v[:, 0].mean():.3f} precision {v[:, 1].mean():.3f} "
+        print(f"{k:<15} recall {v[:, 0].mean():.3f} precision {v[:, 1].mean():.3f} "
               f"raw {v[ok, 2].mean():.2f} cm normalised {v[ok, 3].mean():.2f} cm "
               f"bones {v[:, 4].mean():.1f}")
     return 0
