@@ -34,7 +34,6 @@ from bench_registration_downstream import score_joints  # noqa: E402
 from pointrig.config import PipelineConfig, apply_overrides  # noqa: E402
 from pointrig.kinematics import joint_trajectories  # noqa: E402
 from pointrig.pipeline import extract  # noqa: E402
-from pointrig.preprocess import remove_sparse_frames  # noqa: E402
 from pointrig.view import view_depth_joints  # noqa: E402
 
 #: (label, points, direction) of each variant; ``None`` = the joints as step 3 left them
@@ -106,9 +105,7 @@ def run(sequences: dict[str, tuple[str, dict]], only: set[str], frames: int,
         res = extract(seq, cfg, None, pictures=False)
         sk, st = res.skeleton, res.structure
         final = res.refined_registration or res.registration
-        # the frames the pipeline reads: cleaned as extract cleans them
-        observed = remove_sparse_frames(seq, cfg.preprocess.sparse_neighbors,
-                                        cfg.preprocess.sparse_ratio)[0].frames
+        observed = res.frames  # the frames the pipeline read, after its clean-up
         line, secs = f"{name:<24} ", []
         for label, points, direction in VARIANTS:
             P = sk.joint_positions

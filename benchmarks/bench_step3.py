@@ -52,7 +52,6 @@ from pointrig.config import (  # noqa: E402
 )
 from pointrig.joints import learn_joints  # noqa: E402
 from pointrig.pipeline import extract, output_skeleton  # noqa: E402
-from pointrig.preprocess import remove_sparse_frames  # noqa: E402
 from pointrig.skeleton import Skeleton  # noqa: E402
 
 
@@ -67,10 +66,8 @@ def cached_inputs(name: str, syn: Any, cache: Path) -> dict[str, Any]:
     cfg = PipelineConfig()
     seq = syn.to_point_sequence()
     out = extract(seq, cfg, None, pictures=False)
-    clean, _ = remove_sparse_frames(seq, cfg.preprocess.sparse_neighbors,
-                                    cfg.preprocess.sparse_ratio)
     reg = out.refined_registration or out.registration
-    data = dict(frames=clean.frames, rest=reg.rest_points, regpts=reg.points,
+    data = dict(frames=out.frames, rest=reg.rest_points, regpts=reg.points,
                 structure=out.structure, rest_index=out.registration.params.get(
                     "rest_frame_index"), default_P=out.skeleton.joint_positions)
     cache.mkdir(parents=True, exist_ok=True)

@@ -314,15 +314,13 @@ def test_output_skeleton_is_what_extract_writes():
     from pointrig.config import PipelineConfig
     from pointrig.io import read_sequence
     from pointrig.pipeline import extract, output_skeleton
-    from pointrig.preprocess import remove_sparse_frames
 
     cfg = PipelineConfig()
     seq = read_sequence(demo_path() / "frames")
     res = extract(seq, cfg, None, pictures=False)
     jr, st = res.joints, res.structure
     final = res.refined_registration or res.registration
-    frames = remove_sparse_frames(seq, cfg.preprocess.sparse_neighbors,
-                                  cfg.preprocess.sparse_ratio)[0].frames
+    frames = res.frames
     labels = np.argmax(jr.weights, axis=1)
     args = (res.registration.rest_points, labels, st.bone_parent, jr.joints_rest, jr.R, jr.T,
             jr.weights, cfg, st.view_camera)

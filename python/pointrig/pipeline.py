@@ -58,6 +58,9 @@ class ExtractResult:
     #: ``(F,)`` fraction of each input frame's points removed as sparse before step 1
     #: (``[preprocess] sparse_ratio``)
     sparse_removed: np.ndarray | None = None
+    #: the ``F`` observed clouds ``(N_t, 3)`` after that clean-up, as steps 1-3 and the
+    #: joint-depth pass read them (metres)
+    frames: list[np.ndarray] | None = None
 
 
 def build_skeleton(rest_points: np.ndarray, bone_parent: np.ndarray, joints_rest: np.ndarray,
@@ -230,7 +233,7 @@ def extract(
             reg.save(ckpt)
     timings["registration"] = time.perf_counter() - t0
     result = ExtractResult(None, reg, timings=timings, reused_registration=reused,
-                           sparse_removed=removed)
+                           sparse_removed=removed, frames=list(seq.frames))
     if ckpt is not None:
         result.files["registration"] = ckpt
     if stop_after == "registration":
