@@ -47,3 +47,26 @@ def test_pipeline_gap_is_the_largest_joint_distance() -> None:
     assert pipeline_gap(P, P) == 0.0
     assert abs(pipeline_gap(Q, P) - 0.005) < 1e-12
     assert pipeline_gap(P[:, :3], P) == float("inf")
+
+
+def test_lateral_recall_leaves_out_the_depth_along_the_ray() -> None:
+    """Joint 0 moved 0.5 m along its own ray (unmatched by the evaluation, matched without the
+    depth), joint 1 moved 0.05 m across it (matched both ways), joint 2 moved 0.5 m across it
+    (unmatched both ways): recall 1/3, lateral recall 2/3; the truth itself: 1 and 1."""
+    from bench_step3 import lateral_recall
+
+    rng = np.random.default_rng(2)
+    F = 10
+    gt = np.stack([np.array([0.0, 0.0, 2.0]), np.array([0.3, -0.2, 2.1]),
+                   np.array([-0.25, 0.3, 1.9])])[None] + 0.05 * rng.normal(size=(F, 3, 3))
+    u = gt / np.linalg.norm(gt, axis=2, keepdims=True)
+    across = np.cross(u, np.array([0.0, 0.0, 1.0]))
+    across /= np.linalg.norm(across, axis=2, keepdims=True)
+    pred = gt + np.stack([0.5 * u[:, 0], 0.05 * across[:, 1], 0.5 * across[:, 2]], axis=1)
+    parents = np.array([-1, 0, 0])
+    rep = evaluate(pred, gt, parents, threshold=0.2)
+    syn = SimpleNamespace(gt_joints=gt)
+    assert abs(rep.recall - 1 / 3) < 1e-12
+    assert abs(lateral_recall(pred, syn, rep) - 2 / 3) < 1e-12
+    exact = evaluate(gt, gt, parents, threshold=0.2)
+    assert lateral_recall(gt, syn, exact) == 1.0
