@@ -38,7 +38,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -52,6 +51,7 @@ from pointrig.config import (  # noqa: E402
     StructureConfig,
     apply_overrides,
 )
+from pointrig.evaluate import match_pairs  # noqa: E402
 from pointrig.joints import learn_joints  # noqa: E402
 from pointrig.pipeline import extract, output_skeleton  # noqa: E402
 from pointrig.skeleton import Skeleton  # noqa: E402
@@ -147,9 +147,7 @@ def lateral_recall(joint_positions: np.ndarray, syn: Any, report: Any) -> float:
     diff = joint_positions[:, :, None] - g[:, None]  # (F, P, Js, 3)
     along = np.einsum("fpjk,fjk->fpj", diff, u)
     cost = np.linalg.norm(diff - along[..., None] * u[:, None], axis=3).mean(axis=0)
-    tau = report.threshold
-    ri, ci = linear_sum_assignment(np.where(cost < tau, cost, 1e6 * (1.0 + cost.max())))
-    return float(np.sum(cost[ri, ci] < tau)) / len(cols)
+    return len(match_pairs(cost, report.threshold)) / len(cols)
 
 
 def main(argv: list[str]) -> int:

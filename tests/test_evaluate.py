@@ -392,3 +392,27 @@ def test_cli_synth_and_preview(tmp_path, capsys):
     assert main(["preview", str(out), "--frame", "7", "-o", str(tmp_path / "r.png")]) == 1
     assert main(["synth", "unicorn", "-o", str(out)]) == 1
     assert "unknown source" in capsys.readouterr().err
+
+
+def test_match_pairs_against_brute_force() -> None:
+    """The evaluation's matching on random small cost matrices equals the brute-force optimum:
+    the most pairs under the threshold, then the least total cost among those."""
+    from pointrig.evaluate import match_pairs
+
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        P, J = rng.integers(1, 5, size=2)
+        cost = rng.uniform(0.0, 1.0, size=(P, J))
+        thr = float(rng.uniform(0.2, 0.9))
+        best = (0, 0.0)
+        for k in range(min(P, J) + 1):
+            for rows in itertools.permutations(range(P), k):
+                for cols in itertools.combinations(range(J), k):
+                    c = cost[list(rows), list(cols)]
+                    if np.all(c < thr) and (k, -c.sum()) > (best[0], -best[1]):
+                        best = (k, float(c.sum()))
+        got = match_pairs(cost, thr)
+        assert len(got) == best[0]
+        assert abs(sum(cost[a, b] for a, b in got) - best[1]) < 1e-9
+        assert len({a for a, _ in got}) == len(got) == len({b for _, b in got})
+    assert match_pairs(np.zeros((3, 0)), 1.0) == []

@@ -64,7 +64,7 @@ import numpy as np
 
 from .errors import ConfigError, InputError
 
-__all__ = ["EvalReport", "JointRow", "evaluate", "evaluate_files", "pair_errors",
+__all__ = ["EvalReport", "JointRow", "evaluate", "evaluate_files", "match_pairs", "pair_errors",
            "pivot_errors", "scorable_joints",
            "subject_size", "load_prediction", "SWING_FRACTION", "DUPLICATE_FRACTION",
            "THRESHOLD_FRACTION", "SWING_SOURCES"]
@@ -484,6 +484,33 @@ def scorable_joints(gt_joints: np.ndarray, gt_parents: np.ndarray, *,
 
 
 
+def match_pairs(cost: np.ndarray, threshold: float) -> list[tuple[int, int]]:
+    """The evaluation's matching: the one-to-one assignment of predictions to true joints with
+    the least total cost among pairs cheaper than ``threshold``.
+
+    Parameters
+    ----------
+    cost
+        ``(P, J)`` cost of each prediction / true-joint pair (the mean distance over the
+        frames, metres).
+    threshold
+        Pairs at or above it never match (metres).
+
+    Returns
+    -------
+    list of (int, int)
+        ``(prediction, true joint)`` index pairs, each cheaper than ``threshold``.
+    """
+    from scipy.optimize import linear_sum_assignment
+
+    cost = np.asarray(cost, dtype=np.float64)
+    if cost.size == 0:
+        return []
+    gated = np.where(cost < threshold, cost, 1e6 * (1.0 + float(np.max(cost))))
+    ri, ci = linear_sum_assignment(gated)
+    return [(int(a), int(b)) for a, b in zip(ri, ci) if cost[a, b] < threshold]
+
+
 def pair_errors(pred: np.ndarray, gt: np.ndarray) -> tuple[float, float]:
     """Raw and normalised error (metres) of one matched pair of trajectories.
 
@@ -540,8 +567,6 @@ def evaluate(pred_joints: np.ndarray, gt_joints: np.ndarray, gt_parents: np.ndar
     InputError
         Malformed predictions or ground truth (wrong shape, NaN, frame-count mismatch).
     """
-    from scipy.optimize import linear_sum_assignment
-
     g = _check_joints(gt_joints, "ground truth", gt_source)
     p = _check_joints(pred_joints, "prediction", pred_source)
     if p.shape[0] != g.shape[0]:
@@ -571,15 +596,10 @@ def evaluate(pred_joints: np.ndarray, gt_joints: np.ndarray, gt_parents: np.ndar
     matched = np.full(J, -1, dtype=np.int64)
     raw = np.full(J, np.nan)
     norm = np.full(J, np.nan)
-    if len(cols):
-        big = 1e6 * (1.0 + float(np.max(cost)))
-        gated = np.where(cost < tau, cost, big)
-        ri, ci = linear_sum_assignment(gated)
-        for a, b in zip(ri, ci):
-            if cost[a, b] < tau:
-                j = int(cols[b])
-                matched[j] = int(a)
-                raw[j], norm[j] = pair_errors(p[:, a], g[:, j])
+    for a, b in match_pairs(cost, tau):
+        j = int(cols[b])
+        matched[j] = a
+        raw[j], norm[j] = pair_errors(p[:, a], g[:, j])
     n_match = int((matched >= 0).sum())
     n_sc = int(mask.sum())
     pivot = np.full(J, np.nan)
