@@ -14,6 +14,7 @@ from pointrig.evaluate import (
     evaluate,
     evaluate_files,
     load_prediction,
+    match_pairs,
     pivot_errors,
     scorable_joints,
     subject_size,
@@ -397,8 +398,6 @@ def test_cli_synth_and_preview(tmp_path, capsys):
 def test_match_pairs_against_brute_force() -> None:
     """The evaluation's matching on random small cost matrices equals the brute-force optimum:
     the most pairs under the threshold, then the least total cost among those."""
-    from pointrig.evaluate import match_pairs
-
     rng = np.random.default_rng(3)
     for _ in range(200):
         P, J = rng.integers(1, 5, size=2)

@@ -483,7 +483,6 @@ def scorable_joints(gt_joints: np.ndarray, gt_parents: np.ndarray, *,
     return mask, reasons, swing
 
 
-
 def match_pairs(cost: np.ndarray, threshold: float) -> list[tuple[int, int]]:
     """The evaluation's matching: the one-to-one assignment of predictions to true joints with
     the least total cost among pairs cheaper than ``threshold``.
