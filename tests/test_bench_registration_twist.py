@@ -14,7 +14,7 @@ from pointrig.kinematics import swing_twist
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
-from bench_registration_twist import bone_errors  # noqa: E402
+from bench_registration_twist import bone_errors, relative_turns  # noqa: E402
 
 
 def _perpendicular(a: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -169,3 +169,39 @@ def test_minimal_twist_roll_gate() -> None:
     R_all, _ = minimal_twist(R, T, joints, parent, rest, labels)
     np.testing.assert_allclose(R_lo, R_all, atol=1e-12)
     assert np.abs(R_lo[:, 1] - R[:, 1]).max() > 0.1
+
+
+def test_relative_turns_splits_a_known_error_along_and_across_the_true_turn() -> None:
+    """Oracle: the registration's relative rotation is built as exp(k r + e), with r the true
+    relative rotation vector and e a vector perpendicular to it of length a |r|; the gain is
+    k and the axis error a. A magnitude ratio |k r + e| / |r| = sqrt(k^2 + a^2) would read
+    0.8 and 0.6 as a 1.0 "right" turn. Frames below the turn threshold are left out."""
+    rng = np.random.default_rng(7)
+    F = 40
+    k, a = 0.8, 0.6
+    R_true = np.empty((F, 2, 3, 3))
+    R_reg = np.empty((F, 2, 3, 3))
+    small = np.zeros(F, bool)
+    small[:5] = True
+    for t in range(F):
+        parent = Rotation.from_rotvec(rng.normal(size=3))
+        axis = rng.normal(size=3)
+        axis /= np.linalg.norm(axis)
+        angle = np.radians(2.0) if small[t] else rng.uniform(0.2, 1.2)
+        r = angle * axis
+        e = a * angle * _perpendicular(axis, rng)
+        if small[t]:
+            e = -r  # the registration misses the small turns entirely
+        R_true[t, 0] = R_reg[t, 0] = parent.as_matrix()
+        R_true[t, 1] = (parent * Rotation.from_rotvec(r)).as_matrix()
+        R_reg[t, 1] = (parent * Rotation.from_rotvec(k * r + e if not small[t] else r + e)
+                       ).as_matrix()
+    out = relative_turns(R_reg, R_true, [(0, 1)], min_turn_deg=5.0)
+    gain, across, n = out[(0, 1)]
+    assert n == F - 5
+    assert gain == pytest.approx(k, abs=1e-9)
+    assert across == pytest.approx(a, abs=1e-9)
+    # the exact registration: gain 1, no axis error; a pair that never turns is left out
+    exact = relative_turns(R_true, R_true, [(0, 1), (0, 0)])
+    assert exact[(0, 1)][:2] == pytest.approx((1.0, 0.0), abs=1e-9)
+    assert (0, 0) not in exact
