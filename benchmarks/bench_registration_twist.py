@@ -101,8 +101,14 @@ def bone_errors(rest_points: np.ndarray, points: np.ndarray, rest_frame: int,
     -------
     ``{bone: (angle (F,), twist (F,))}`` in degrees; ``twist`` is signed.
     """
-    R_reg, R_true, counts, S, lab = tied_fits(rest_points, points, rest_frame, surface,
-                                              surface_labels, max_offset)
+    return errors_from_fits(*tied_fits(rest_points, points, rest_frame, surface,
+                                       surface_labels, max_offset), min_points=min_points)
+
+
+def errors_from_fits(R_reg: np.ndarray, R_true: np.ndarray, counts: np.ndarray, S: np.ndarray,
+                     lab: np.ndarray, min_points: int = 20
+                     ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """:func:`bone_errors` from the output of :func:`tied_fits`."""
     out: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     for b in np.flatnonzero(counts >= min_points):
         E = np.einsum("fij,fkj->fik", R_reg[:, b], R_true[:, b])  # R_reg R_true^T
@@ -187,8 +193,9 @@ def main(argv: list[str]) -> int:
             for stage, points in stages:
                 if points is None:
                     continue
-                errs = bone_errors(reg.rest_points, points, rf, syn.surface,
-                                   syn.surface_labels, a.max_offset, a.min_points)
+                fits = tied_fits(reg.rest_points, points, rf, syn.surface,
+                                 syn.surface_labels, a.max_offset)
+                errs = errors_from_fits(*fits, min_points=a.min_points)
                 print(f"{name} variant {v} {stage} (rest frame {rf}): bone p90 angle / twist deg")
                 p90a = []
                 share = []
@@ -201,14 +208,12 @@ def main(argv: list[str]) -> int:
                       f"{np.mean(p90a):.1f} deg, twist share of the squared error (median) "
                       f"{np.median(share):.2f}", flush=True)
                 summary.setdefault((v, stage), []).append(np.mean(p90a))
-                R_reg, R_true, counts, _, _ = tied_fits(reg.rest_points, points, rf,
-                                                        syn.surface, syn.surface_labels,
-                                                        a.max_offset)
+                counts = fits[2]
                 par = np.asarray(syn.joint_parents)
                 pairs = [(int(par[c]), c) for c in range(len(par))
                          if 0 <= par[c] < len(counts) and c < len(counts)
                          and min(counts[c], counts[par[c]]) >= a.min_points]
-                turns = relative_turns(R_reg, R_true, pairs)
+                turns = relative_turns(fits[0], fits[1], pairs)
                 if turns:
                     g = [x[0] for x in turns.values()]
                     e = [x[1] for x in turns.values()]

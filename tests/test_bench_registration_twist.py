@@ -189,13 +189,11 @@ def test_relative_turns_splits_a_known_error_along_and_across_the_true_turn() ->
         axis /= np.linalg.norm(axis)
         angle = np.radians(2.0) if small[t] else rng.uniform(0.2, 1.2)
         r = angle * axis
-        e = a * angle * _perpendicular(axis, rng)
-        if small[t]:
-            e = -r  # the registration misses the small turns entirely
+        # the registration misses the small turns entirely
+        v = np.zeros(3) if small[t] else k * r + a * angle * _perpendicular(axis, rng)
         R_true[t, 0] = R_reg[t, 0] = parent.as_matrix()
         R_true[t, 1] = (parent * Rotation.from_rotvec(r)).as_matrix()
-        R_reg[t, 1] = (parent * Rotation.from_rotvec(k * r + e if not small[t] else r + e)
-                       ).as_matrix()
+        R_reg[t, 1] = (parent * Rotation.from_rotvec(v)).as_matrix()
     out = relative_turns(R_reg, R_true, [(0, 1)], min_turn_deg=5.0)
     gain, across, n = out[(0, 1)]
     assert n == F - 5
