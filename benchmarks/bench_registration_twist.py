@@ -39,6 +39,7 @@ from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -151,8 +152,6 @@ def relative_turns(R_reg: np.ndarray, R_true: np.ndarray, pairs: list[tuple[int,
     ``{(parent, child): (gain, axis error, frames used)}``; pairs with no such frame are left
     out.
     """
-    from scipy.spatial.transform import Rotation
-
     out: dict[tuple[int, int], tuple[float, float, int]] = {}
     for p, c in pairs:
         rel = [np.einsum("fji,fjk->fik", R[:, p], R[:, c]) for R in (R_reg, R_true)]
@@ -208,12 +207,12 @@ def main(argv: list[str]) -> int:
                       f"{np.mean(p90a):.1f} deg, twist share of the squared error (median) "
                       f"{np.median(share):.2f}", flush=True)
                 summary.setdefault((v, stage), []).append(np.mean(p90a))
-                counts = fits[2]
+                R_reg, R_true, counts, _, _ = fits
                 par = np.asarray(syn.joint_parents)
                 pairs = [(int(par[c]), c) for c in range(len(par))
                          if 0 <= par[c] < len(counts) and c < len(counts)
                          and min(counts[c], counts[par[c]]) >= a.min_points]
-                turns = relative_turns(fits[0], fits[1], pairs)
+                turns = relative_turns(R_reg, R_true, pairs)
                 if turns:
                     g = [x[0] for x in turns.values()]
                     e = [x[1] for x in turns.values()]
