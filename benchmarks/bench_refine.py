@@ -146,6 +146,19 @@ SPREAD: dict[str, tuple[str, dict]] = {
     "s_human_walk_51": ("human", {"seed": 51, "walk": 2.0, "yaw": 20}),
 }
 
+#: Small subjects (session 56): the procedural hand (a 24 cm rest-pose diagonal, a tenth of the
+#: human's) at seeds 40-45 and yaws no session had run. Step 1's parameters are in metres and
+#: were chosen on human-sized figures; this set measures how they carry down to a hand
+#: (``bench_suite.py --set hands``; docs/registration.md "Session 56").
+HANDS: dict[str, tuple[str, dict]] = {
+    "h_hand_40": ("hand", {"seed": 40, "yaw": -30}),
+    "h_hand_41": ("hand", {"seed": 41, "yaw": 0}),
+    "h_hand_42": ("hand", {"seed": 42, "yaw": 15}),
+    "h_hand_43": ("hand", {"seed": 43, "yaw": 30}),
+    "h_hand_44": ("hand", {"seed": 44, "yaw": -10}),
+    "h_hand_45": ("hand", {"seed": 45, "yaw": 20}),
+}
+
 #: Every figure and rig sequence of the four sets above (50; ``--set all``, ~35 min): one mean
 #: to judge a default by, most of it on sequences no change was chosen on.
 ALL: dict[str, tuple[str, dict]] = {**SEQUENCES, **VALIDATION, **FRESH, **SPREAD}
@@ -153,7 +166,7 @@ ALL: dict[str, tuple[str, dict]] = {**SEQUENCES, **VALIDATION, **FRESH, **SPREAD
 #: The sequence sets by name (``--set`` of ``bench_suite.py``).
 SETS: dict[str, dict[str, tuple[str, dict]]] = {"suite": SEQUENCES, "validation": VALIDATION,
                                                 "fresh": FRESH, "spread": SPREAD, "all": ALL,
-                                                "limbs": LIMBS}
+                                                "limbs": LIMBS, "hands": HANDS}
 
 
 def _synth(source: str, kw: dict, frames: int):
