@@ -18,7 +18,9 @@ joint) and the recall of the procedural figures and of the glTF rigs::
 ``--set validation`` runs :data:`bench_refine.VALIDATION` instead: 16 sequences of the same
 figures and rigs with seeds, views and clips no change was tuned on (choose a variant on the
 suite, then check it there). ``--set limbs`` runs :data:`bench_refine.LIMBS`: the bare arm
-and the robot arm, five sequences the suite lacks.
+and the robot arm, five sequences the suite lacks. ``--set hands`` runs
+:data:`bench_refine.HANDS`: six procedural hands (a 24 cm subject) at seeds and yaws no
+session had run (session 56).
 
 ``--json FILE`` also writes every run's report.
 
