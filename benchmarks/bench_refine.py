@@ -146,6 +146,10 @@ SPREAD: dict[str, tuple[str, dict]] = {
     "s_human_walk_51": ("human", {"seed": 51, "walk": 2.0, "yaw": 20}),
 }
 
+#: Every figure and rig sequence of the four sets above (50; ``--set all``, ~35 min): one mean
+#: to judge a default by, most of it on sequences no change was chosen on.
+ALL: dict[str, tuple[str, dict]] = {**SEQUENCES, **VALIDATION, **FRESH, **SPREAD}
+
 #: Small subjects (session 56): the procedural hand (a 24 cm rest-pose diagonal, a tenth of the
 #: human's) at seeds 40-45 and yaws no session had run. Step 1's parameters are in metres and
 #: were chosen on human-sized figures; this set measures how they carry down to a hand
@@ -158,10 +162,6 @@ HANDS: dict[str, tuple[str, dict]] = {
     "h_hand_44": ("hand", {"seed": 44, "yaw": -10}),
     "h_hand_45": ("hand", {"seed": 45, "yaw": 20}),
 }
-
-#: Every figure and rig sequence of the four sets above (50; ``--set all``, ~35 min): one mean
-#: to judge a default by, most of it on sequences no change was chosen on.
-ALL: dict[str, tuple[str, dict]] = {**SEQUENCES, **VALIDATION, **FRESH, **SPREAD}
 
 #: The sequence sets by name (``--set`` of ``bench_suite.py``).
 SETS: dict[str, dict[str, tuple[str, dict]]] = {"suite": SEQUENCES, "validation": VALIDATION,
