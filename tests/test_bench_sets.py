@@ -27,7 +27,8 @@ def test_validation_set_is_disjoint_from_the_suite() -> None:
     assert not set(suite) & set(val)
     assert not {_key(*v) for v in suite.values()} & {_key(*v) for v in val.values()}
     assert not {kw["seed"] for _, kw in suite.values()} & {kw["seed"] for _, kw in val.values()}
-    assert set(bench_refine.SETS) == {"suite", "validation", "fresh", "spread", "all", "limbs"}
+    assert set(bench_refine.SETS) == {"suite", "validation", "fresh", "spread", "all", "limbs",
+                                      "hands"}
 
 
 @pytest.mark.parametrize("held", ["fresh", "spread"])
@@ -43,14 +44,28 @@ def test_later_held_back_sets_are_disjoint_from_the_earlier_sets(held: str) -> N
                     & {kw["seed"] for _, kw in other.values()})
 
 
+def test_hands_set_is_new_hands() -> None:
+    """The hands set (session 56) holds only the procedural hand, at seeds no hand of another
+    set uses, and shares no name or (source, keywords) pair with any other set."""
+    hands = bench_refine.HANDS
+    assert {src for src, _ in hands.values()} == {"hand"}
+    others = [v for k, v in bench_refine.SETS.items() if k != "hands"]
+    other_hand_seeds = {kw["seed"] for o in others for src, kw in o.values() if src == "hand"}
+    assert not {kw["seed"] for _, kw in hands.values()} & other_hand_seeds
+    for o in others:
+        assert not set(hands) & set(o)
+        assert not {_key(*v) for v in hands.values()} & {_key(*v) for v in o.values()}
+
+
 @pytest.mark.parametrize("name", sorted(bench_refine.VALIDATION) + sorted(bench_refine.FRESH)
-                         + sorted(bench_refine.SPREAD) + sorted(bench_refine.LIMBS))
+                         + sorted(bench_refine.SPREAD) + sorted(bench_refine.LIMBS)
+                         + sorted(bench_refine.HANDS))
 def test_validation_entries_name_a_figure_or_a_rig(name: str) -> None:
-    """Each source (of the validation, fresh, spread and limbs sets) is a procedural figure or
-    a .glb under the shared models folder, and the keywords are ones the benchmark's synthesis
-    takes."""
+    """Each source (of the validation, fresh, spread, limbs and hands sets) is a procedural
+    figure or a .glb under the shared models folder, and the keywords are ones the benchmark's
+    synthesis takes."""
     source, kw = {**bench_refine.VALIDATION, **bench_refine.FRESH, **bench_refine.SPREAD,
-                  **bench_refine.LIMBS}[name]
+                  **bench_refine.LIMBS, **bench_refine.HANDS}[name]
     if source.endswith(".glb"):
         assert Path(source).parent == bench_refine._MODELS
     else:
