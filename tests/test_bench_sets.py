@@ -57,15 +57,17 @@ def test_hands_set_is_new_hands() -> None:
         assert not {_key(*v) for v in hands.values()} & {_key(*v) for v in o.values()}
 
 
-@pytest.mark.parametrize("name", sorted(bench_refine.VALIDATION) + sorted(bench_refine.FRESH)
-                         + sorted(bench_refine.SPREAD) + sorted(bench_refine.LIMBS)
-                         + sorted(bench_refine.HANDS))
+#: The entries of every set but the suite and ALL (their union), by name.
+_OTHER_ENTRIES = {**bench_refine.VALIDATION, **bench_refine.FRESH, **bench_refine.SPREAD,
+                  **bench_refine.LIMBS, **bench_refine.HANDS}
+
+
+@pytest.mark.parametrize("name", sorted(_OTHER_ENTRIES))
 def test_validation_entries_name_a_figure_or_a_rig(name: str) -> None:
     """Each source (of the validation, fresh, spread, limbs and hands sets) is a procedural
     figure or a .glb under the shared models folder, and the keywords are ones the benchmark's
     synthesis takes."""
-    source, kw = {**bench_refine.VALIDATION, **bench_refine.FRESH, **bench_refine.SPREAD,
-                  **bench_refine.LIMBS, **bench_refine.HANDS}[name]
+    source, kw = _OTHER_ENTRIES[name]
     if source.endswith(".glb"):
         assert Path(source).parent == bench_refine._MODELS
     else:

@@ -141,7 +141,8 @@ class RegistrationConfig:
     omega: float = 0.01  # outlier weight (Eq. 1), Table 1. CPD's uniform term (1 / N of a unit
     #   volume, 1 m^3 here) stays below the Gaussian at the cutoff unless omega is above ~0.6
     #   (sigma = 10 cm; ~1 at 1.5 cm), so the cutoff is the outlier model in effect (derived,
-    #   not measured in step 1; docs/joints.md "Session 55")
+    #   docs/joints.md "Session 55"). 0.99, Table 1's 0.01 at a uniform 1 / V density over the
+    #   subject's box, measured mixed (docs/registration.md "Session 56")
     beta_smooth: float = 1e5  # E_smooth weight (Eq. 8a), Table 1 (used when beta_smooth_mode="fixed")
     beta_small: float = 1.0  # E_small weight (Eq. 8a), Table 1
     sigma2_init: float = 6e-4  # initial sigma^2, m^2 (§7.2); also the lower end of the data start
@@ -418,7 +419,8 @@ class JointsConfig:
     omega: float = 0.01  # omega', outlier weight (Eq. 16), Table 1. CPD's uniform term stays
     #   below the Gaussian at the estep_radius_sigmas cut unless omega is ~0.4 (tracker's coarse
     #   start, sqrt(tau) = 10 cm) to ~0.99 (1.5 cm), so the cut is the outlier model in
-    #   effect: 0.05 gives the same joints (docs/joints.md "Session 55")
+    #   effect: 0.05 gives the same joints (docs/joints.md "Session 55"); 0.988 (a uniform
+    #   1 / V density) loses through the whole pipeline (docs/joints.md "Session 56")
     eta: float = 1.0  # boundary-centroid data weight in E_Joint (Eq. 20), Table 1
     zeta: float = 1e4  # E_Register weight (Eq. 21a), Table 1; 0 = ablation "without E_Register"
     gamma: float = 0.1  # E_small weight (Eq. 21a, Eq. 7), Table 1
