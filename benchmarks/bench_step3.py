@@ -21,6 +21,11 @@ the offsets along the ray left out, :func:`lateral_recall`), then the means per 
         '{"joint_prior": 0.3}'
     PYTHONPATH=python python benchmarks/bench_step3.py --cache /tmp/step3 --only human,girl_run
     PYTHONPATH=python python benchmarks/bench_step3.py --cache /tmp/step3 --set validation
+    PYTHONPATH=python python benchmarks/bench_step3.py --cache /tmp/step3 '{}' \\
+        '{"structure": {"leaf_split_angle_deg": 0}}'
+
+A variant's ``"structure"`` key overrides ``[structure]``; with the cached step 2 fixed, only
+the output stage reads it (the output tree, the leaf split of session 57).
 
 A cache is valid for the code and defaults that wrote it; delete it after changing steps 1-2.
 The whole-pipeline effect of a change is measured by ``bench_suite.py`` (step 3 runs twice
@@ -160,8 +165,13 @@ def main(argv: list[str]) -> int:
     a = ap.parse_args(argv)
     sequences, only = chosen(ap, a)
     variants = [json.loads(v) for v in a.variants] or [{}]
-    cfgs: list[JointsConfig] = [apply_overrides({"joints": v}).joints for v in variants]
-    structure_cfg = StructureConfig()
+    # a variant's "structure" key overrides [structure]: only the output stage reads it here
+    # (the output tree, the leaf split), since the cached step 2 is fixed
+    cfgs: list[JointsConfig] = [
+        apply_overrides({"joints": {k: x for k, x in v.items() if k != "structure"}}).joints
+        for v in variants]
+    structure_cfgs: list[StructureConfig] = [
+        apply_overrides({"structure": v.get("structure", {})}).structure for v in variants]
     rows: dict[int, list[tuple[float, ...]]] = {k: [] for k in range(len(variants))}
     print(f"{'sequence':<24} " + " | ".join(
         f"variant {k}: rec/prec raw norm depth lateral-rec (s)" for k in range(len(variants))))
@@ -171,7 +181,7 @@ def main(argv: list[str]) -> int:
         st = d["structure"]
         cells = []
         for k, cfg in enumerate(cfgs):
-            sk, secs = step3_skeleton(d, st, cfg, structure_cfg)
+            sk, secs = step3_skeleton(d, st, cfg, structure_cfgs[k])
             r = score_joints(sk.joint_positions, syn)
             db = depth_bias(sk.joint_positions, syn, r)
             lr = lateral_recall(sk.joint_positions, syn, r)
@@ -180,7 +190,7 @@ def main(argv: list[str]) -> int:
             cells.append(f"{r.recall:.2f}/{r.precision:.2f} {100 * r.raw_error:5.2f} "
                          f"{100 * r.normalized_error:5.2f} {100 * db:+5.2f} {lr:.2f} "
                          f"({secs:3.0f})")
-            if cfg == JointsConfig():
+            if cfg == JointsConfig() and structure_cfgs[k] == StructureConfig():
                 gap.append(pipeline_gap(sk.joint_positions, d["default_P"]))
         print(f"{name:<24} " + " | ".join(cells), flush=True)
     if not rows[0]:

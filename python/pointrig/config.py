@@ -374,6 +374,19 @@ class StructureConfig:
     # along the camera ray to the body's axis depth by the width rule on the rest points within
     # 10 % of the size ("axis", session 38), or left on the visible surface ("surface", before)
     root_depth: str = "axis"
+    # output skeleton after step 3: a leaf bone whose rest shape bends (a foot off its shin)
+    # and whose two pieces move apart in the registration gets a joint at the bend
+    # (pointrig.structure.split_bent_leaves, docs/structure.md "Session 57"): the bend of the
+    # two-segment polyline head -> bend -> tip is at least leaf_split_angle_deg (0 = off), each
+    # segment at least leaf_split_min_fraction of the polyline, the distal one at least
+    # leaf_split_min_length of the subject size, the leaf at least leaf_split_min_points rest
+    # points, and two rigid fits of the pieces to the registered points leave at most
+    # leaf_split_max_ratio of one fit's squared residual
+    leaf_split_angle_deg: float = 30.0
+    leaf_split_min_fraction: float = 0.1
+    leaf_split_min_length: float = 0.03
+    leaf_split_min_points: int = 12
+    leaf_split_max_ratio: float = 0.5
 
     # --- single-view depth correction (our deviation, docs/structure.md) ---
     # one depth view sees only the near side of each part, so boundary centroids c~ lie in

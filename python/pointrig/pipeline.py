@@ -95,6 +95,20 @@ def build_skeleton(rest_points: np.ndarray, bone_parent: np.ndarray, joints_rest
     )
 
 
+def _split_weights(weights: np.ndarray, labels: np.ndarray, source: np.ndarray) -> np.ndarray:
+    """``(M, B')`` skinning weights after :func:`pointrig.structure.split_bent_leaves`: each new
+    bone ``b >= B`` takes its source bone's weight of the points now labelled ``b``."""
+    W = np.asarray(weights, dtype=float)
+    B = W.shape[1]
+    out = np.zeros((W.shape[0], len(source)))
+    out[:, :B] = W
+    for b in range(B, len(source)):
+        moved = labels == b
+        out[moved, b] = W[moved, source[b]]
+        out[moved, source[b]] = 0.0
+    return out
+
+
 def output_skeleton(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np.ndarray,
                     joints_rest: np.ndarray, R: np.ndarray, T: np.ndarray,
                     weights: np.ndarray | None, config: PipelineConfig,
@@ -106,7 +120,9 @@ def output_skeleton(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np
     The one place of the output stage, so that a benchmark that reruns step 3 on cached
     inputs scores what the pipeline writes: the output tree (a leaf root moves to the body's
     centre, :func:`pointrig.structure.output_tree`), then, after step 3 (``observed`` given),
-    the joints to their parts' axis depth along the camera ray (``[joints] joint_depth``,
+    a joint where a leaf bone bends (:func:`pointrig.structure.split_bent_leaves`, ``[structure]
+    leaf_split_*``; the new bones take their leaf's motion), the joints to their parts' axis
+    depth along the camera ray (``[joints] joint_depth``,
     :func:`pointrig.view.view_depth_joints`, docs/joints.md "Session 47") and the bones' rolls
     (``[joints] bone_twist``, :func:`pointrig.kinematics.minimal_twist`), then
     :func:`build_skeleton`.
@@ -141,6 +157,13 @@ def output_skeleton(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np
 
     parent, joints_rest = struct_mod.output_tree(rest_points, labels, bone_parent, joints_rest,
                                                  config.structure, view_camera)
+    if observed is not None and config.structure.leaf_split_angle_deg > 0:
+        labels, parent, joints_rest, source = struct_mod.split_bent_leaves(
+            rest_points, labels, parent, joints_rest, observed[1], config.structure)
+        if len(source) > len(R[0]):
+            R, T = R[:, source], T[:, source]
+            if weights is not None:
+                weights = _split_weights(weights, labels, source)
     if observed is not None and config.joints.joint_depth == "chord" \
             and view_camera is not None:
         t0 = time.perf_counter()

@@ -68,6 +68,8 @@ __all__ = [
     "root_axis_joint",
     "leaf_root",
     "reroot",
+    "leaf_bend",
+    "split_bent_leaves",
 ]
 
 log = logging.getLogger(__name__)
@@ -1410,6 +1412,182 @@ def output_tree(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np.nda
     log.info("root moved from bone %d (a leaf) to bone %d at the body's centre",
              int(np.flatnonzero(parent < 0)[0]), bone)
     return reroot(parent, joints_rest, bone, joint)
+
+
+def _segment_distances(X: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``(n,)`` distances of the points ``X (n, 3)`` to the segment ``a``-``b``."""
+    ab = b - a
+    t = np.clip((X - a) @ ab / max(float(ab @ ab), 1e-24), 0.0, 1.0)
+    return np.linalg.norm(X - (a + t[:, None] * ab), axis=1)
+
+
+def _geodesic_from(X: np.ndarray, source: np.ndarray, k: int = 8) -> np.ndarray:
+    """``(n,)`` distances (metres) from the point of ``X (n, 3)`` nearest ``source`` over the
+    ``k``-nearest-neighbour graph of ``X``; the Euclidean distance to ``source`` where the graph
+    leaves more than a fifth of the points unreached (a piece seen in parts)."""
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import dijkstra
+    from scipy.spatial import cKDTree
+
+    n = len(X)
+    dd, ii = cKDTree(X).query(X, k=min(k + 1, n))
+    rows = np.repeat(np.arange(n), ii.shape[1] - 1)
+    graph = csr_matrix((dd[:, 1:].ravel(), (rows, ii[:, 1:].ravel())), shape=(n, n))
+    s = int(np.argmin(np.linalg.norm(X - source, axis=1)))
+    geo = dijkstra(graph, directed=False, indices=s)
+    if np.isfinite(geo).mean() < 0.8:
+        return np.linalg.norm(X - source, axis=1)
+    return np.where(np.isfinite(geo), geo, np.inf)
+
+
+def leaf_bend(points: np.ndarray, head: np.ndarray, n_bins: int = 10
+              ) -> tuple[float, np.ndarray, float, float, np.ndarray]:
+    """The bend of a bone's rest points: a two-segment polyline head -> bend -> tip.
+
+    The points are ordered by their geodesic distance from the head joint
+    (:func:`_geodesic_from`) and cut into ``n_bins`` bins of equal count; the tip is the
+    centroid of the farthest tenth, and the bend is the bin centroid (bins 2 to ``n_bins - 2``)
+    whose polyline leaves the smallest median point distance.
+
+    Parameters
+    ----------
+    points
+        ``(n, 3)`` rest points of the bone, metres (``n >= 4``).
+    head
+        ``(3,)`` the bone's head joint, metres.
+    n_bins
+        Geodesic bins.
+
+    Returns
+    -------
+    angle, bend, proximal, distal, geodesic
+        The turn between the two segments (degrees, 0 = straight), the bend ``(3,)``
+        (metres), the two segments' lengths (metres) and each point's geodesic distance
+        ``(n,)`` from the head (metres).
+    """
+    X = np.asarray(points, dtype=float)
+    head = np.asarray(head, dtype=float)
+    geo = _geodesic_from(X, head)
+    ok = np.isfinite(geo)
+    tip = X[ok & (geo >= np.quantile(geo[ok], 0.9))].mean(0)
+    edges = np.quantile(geo[ok], np.linspace(0.0, 1.0, n_bins + 1))
+    best = (np.inf, head)
+    for i in range(2, n_bins - 1):
+        inside = ok & (geo >= edges[i]) & (geo <= edges[i + 1])
+        if not inside.any():
+            continue
+        c = X[inside].mean(0)
+        r = float(np.median(np.minimum(_segment_distances(X, head, c),
+                                       _segment_distances(X, c, tip))))
+        if r < best[0]:
+            best = (r, c)
+    bend = best[1]
+    u, v = bend - head, tip - bend
+    lu, lv = float(np.linalg.norm(u)), float(np.linalg.norm(v))
+    if lu < 1e-12 or lv < 1e-12:
+        return 0.0, bend, lu, lv, geo
+    angle = float(np.degrees(np.arccos(np.clip(u @ v / (lu * lv), -1.0, 1.0))))
+    return angle, bend, lu, lv, geo
+
+
+def _rigid_residual(rest: np.ndarray, moved: np.ndarray) -> float:
+    """Sum over frames and points of the squared residual (m^2) of the best rigid fit
+    (Kabsch) of ``rest (n, 3)`` to each frame of ``moved (F, n, 3)``."""
+    a = rest - rest.mean(0)
+    cb = moved.mean(1, keepdims=True)
+    b = moved - cb
+    H = np.einsum("ni,fnj->fij", a, b)
+    U, _, Vt = np.linalg.svd(H)
+    D = np.ones((len(moved), 3))
+    D[:, 2] = np.sign(np.linalg.det(np.einsum("fij,fjk->fik", U, Vt)))
+    Rm = np.einsum("fji,fj,fkj->fik", Vt, D, U)  # V D U^T
+    fit = np.einsum("fij,nj->fni", Rm, a) + cb
+    return float(((fit - moved) ** 2).sum())
+
+
+def split_bent_leaves(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np.ndarray,
+                      joints_rest: np.ndarray, registered: np.ndarray, cfg: StructureConfig
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A joint where a leaf bone's rest shape bends and its two pieces move apart.
+
+    Step 2's clustering gives a small end part (a foot: 12-19 of 2000 rest points) no bone of
+    its own, so it rides in one leaf bone with the end of the limb. A limb between two joints
+    is straight; where a leaf's points bend (:func:`leaf_bend`, at least
+    ``cfg.leaf_split_angle_deg``) and two rigid fits of the two pieces to the registered points
+    leave at most ``cfg.leaf_split_max_ratio`` of one fit's squared residual, the points past
+    the bend become a child bone whose head joint is the bend (docs/structure.md "Session 57").
+    A leaf that one rigid motion fits to 0.1 % of the subject size (RMS) is left whole. With
+    ``cfg.max_joints > 0`` the output keeps at most that many bones: the splits with the
+    smallest residual ratios go first.
+    Either test alone fires on heads, torso pieces and limbs cut lengthwise.
+
+    Parameters
+    ----------
+    rest_points
+        ``(M, 3)`` rest points, metres.
+    labels
+        ``(M,)`` bone of each rest point.
+    bone_parent
+        ``(B,)`` parent bone, ``-1`` for the root.
+    joints_rest
+        ``(B, 3)`` head joints, metres.
+    registered
+        ``(F, M, 3)`` registered points, metres.
+    cfg
+        ``leaf_split_*`` are read; ``leaf_split_angle_deg = 0`` returns the input.
+
+    Returns
+    -------
+    labels, parent, joints, source
+        ``(M,)``, ``(B',)``, ``(B', 3)`` and ``(B',)``: the new bones come after the old ones,
+        and ``source[b]`` is the bone whose motion and skinning weights bone ``b`` takes (``b``
+        itself for the old bones, the split leaf for a new one).
+    """
+    labels = np.asarray(labels, dtype=np.int64).copy()
+    parent = [int(p) for p in bone_parent]
+    joints = [np.asarray(j, dtype=float) for j in joints_rest]
+    B = len(parent)
+    source = list(range(B))
+    if cfg.leaf_split_angle_deg <= 0:
+        return labels, np.array(parent, dtype=np.int64), np.array(joints), np.array(source)
+    Q = np.asarray(rest_points, dtype=float)
+    Y = np.asarray(registered, dtype=float)
+    size = float(np.linalg.norm(np.ptp(Q, axis=0)))
+    n_children = np.bincount([p for p in parent if p >= 0], minlength=B)
+    found: list[tuple[float, int, float, np.ndarray, np.ndarray]] = []
+    for b in range(B):
+        if n_children[b] or parent[b] < 0:
+            continue
+        idx = np.flatnonzero(labels == b)
+        if len(idx) < max(cfg.leaf_split_min_points, 4):
+            continue
+        angle, bend, lu, lv, geo = leaf_bend(Q[idx], joints[b])
+        if angle < cfg.leaf_split_angle_deg \
+                or min(lu, lv) < cfg.leaf_split_min_fraction * (lu + lv) \
+                or lv < cfg.leaf_split_min_length * size:
+            continue
+        g_bend = geo[int(np.argmin(np.linalg.norm(Q[idx] - bend, axis=1)))]
+        far = idx[geo > g_bend]
+        near = idx[geo <= g_bend]
+        if len(far) < 4 or len(near) < 4:
+            continue
+        one = _rigid_residual(Q[idx], Y[:, idx])
+        if np.sqrt(one / (len(Y) * len(idx))) < 1e-3 * size:
+            continue  # one rigid motion explains the leaf (noise-free input): nothing bends
+        two = _rigid_residual(Q[near], Y[:, near]) + _rigid_residual(Q[far], Y[:, far])
+        if two <= cfg.leaf_split_max_ratio * one:
+            found.append((two / one, b, angle, far, np.asarray(bend, dtype=float)))
+    # a user's cap on the joints (max_joints) holds: the clearest splits first
+    room = cfg.max_joints - B if cfg.max_joints > 0 else len(found)
+    for ratio, b, angle, far, bend in sorted(found, key=lambda c: (c[0], c[1]))[:max(room, 0)]:
+        log.info("leaf bone %d split at its bend (%.0f deg, residual ratio %.2f)", b, angle,
+                 ratio)
+        labels[far] = len(parent)
+        parent.append(b)
+        joints.append(bend)
+        source.append(b)
+    return (labels, np.array(parent, dtype=np.int64), np.array(joints),
+            np.array(source, dtype=np.int64))
 
 
 def leaf_root(bone_parent: np.ndarray) -> bool:
