@@ -160,7 +160,7 @@ def output_skeleton(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np
     if observed is not None and config.structure.leaf_split_angle_deg > 0:
         labels, parent, joints_rest, source = struct_mod.split_bent_leaves(
             rest_points, labels, parent, joints_rest, observed[1], config.structure)
-        if len(source) > len(R[0]):
+        if len(source) > R.shape[1]:
             R, T = R[:, source], T[:, source]
             if weights is not None:
                 weights = _split_weights(weights, labels, source)

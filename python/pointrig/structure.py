@@ -1490,18 +1490,14 @@ def leaf_bend(points: np.ndarray, head: np.ndarray, n_bins: int = 10
     return angle, bend, lu, lv, geo
 
 
-def _rigid_residual(rest: np.ndarray, moved: np.ndarray) -> float:
-    """Sum over frames and points of the squared residual (m^2) of the best rigid fit
-    (Kabsch) of ``rest (n, 3)`` to each frame of ``moved (F, n, 3)``."""
-    a = rest - rest.mean(0)
-    cb = moved.mean(1, keepdims=True)
-    b = moved - cb
-    H = np.einsum("ni,fnj->fij", a, b)
-    U, _, Vt = np.linalg.svd(H)
-    D = np.ones((len(moved), 3))
-    D[:, 2] = np.sign(np.linalg.det(np.einsum("fij,fjk->fik", U, Vt)))
-    Rm = np.einsum("fji,fj,fkj->fik", Vt, D, U)  # V D U^T
-    fit = np.einsum("fij,nj->fni", Rm, a) + cb
+def _rigid_residual(rest: np.ndarray, moved: np.ndarray, pieces: np.ndarray) -> float:
+    """Sum over frames and points of the squared residual (m^2) of each piece's best rigid fit
+    (:func:`fit_bones`) of ``rest (n, 3)`` to each frame of ``moved (F, n, 3)``; ``pieces
+    (n,)`` numbers the pieces from 0."""
+    pieces = np.ascontiguousarray(pieces, dtype=np.int64)
+    R, T, _ = fit_bones(np.ascontiguousarray(rest), np.ascontiguousarray(moved), pieces,
+                        int(pieces.max()) + 1)
+    fit = np.einsum("fnij,nj->fni", R[:, pieces], rest) + T[:, pieces]
     return float(((fit - moved) ** 2).sum())
 
 
@@ -1516,10 +1512,10 @@ def split_bent_leaves(rest_points: np.ndarray, labels: np.ndarray, bone_parent: 
     ``cfg.leaf_split_angle_deg``) and two rigid fits of the two pieces to the registered points
     leave at most ``cfg.leaf_split_max_ratio`` of one fit's squared residual, the points past
     the bend become a child bone whose head joint is the bend (docs/structure.md "Session 57").
-    A leaf that one rigid motion fits to 0.1 % of the subject size (RMS) is left whole. With
+    Either test alone fires on heads, torso pieces and limbs cut lengthwise. A leaf that one
+    rigid motion fits to 0.1 % of the subject size (RMS) is left whole. With
     ``cfg.max_joints > 0`` the output keeps at most that many bones: the splits with the
     smallest residual ratios go first.
-    Either test alone fires on heads, torso pieces and limbs cut lengthwise.
 
     Parameters
     ----------
@@ -1568,13 +1564,12 @@ def split_bent_leaves(rest_points: np.ndarray, labels: np.ndarray, bone_parent: 
             continue
         g_bend = geo[int(np.argmin(np.linalg.norm(Q[idx] - bend, axis=1)))]
         far = idx[geo > g_bend]
-        near = idx[geo <= g_bend]
-        if len(far) < 4 or len(near) < 4:
+        if len(far) < 4 or len(idx) - len(far) < 4:
             continue
-        one = _rigid_residual(Q[idx], Y[:, idx])
+        one = _rigid_residual(Q[idx], Y[:, idx], np.zeros(len(idx)))
         if np.sqrt(one / (len(Y) * len(idx))) < 1e-3 * size:
             continue  # one rigid motion explains the leaf (noise-free input): nothing bends
-        two = _rigid_residual(Q[near], Y[:, near]) + _rigid_residual(Q[far], Y[:, far])
+        two = _rigid_residual(Q[idx], Y[:, idx], geo > g_bend)
         if two <= cfg.leaf_split_max_ratio * one:
             found.append((two / one, b, angle, far, np.asarray(bend, dtype=float)))
     # a user's cap on the joints (max_joints) holds: the clearest splits first
