@@ -155,6 +155,19 @@ def lateral_recall(joint_positions: np.ndarray, syn: Any, report: Any) -> float:
     return len(match_pairs(cost, report.threshold)) / len(cols)
 
 
+def variant_configs(variants: list[dict[str, Any]]
+                    ) -> tuple[list[JointsConfig], list[StructureConfig]]:
+    """Each variant's ``[joints]`` and ``[structure]`` parameters: its keys override
+    ``[joints]``, except ``"structure"``, whose object overrides ``[structure]``. With the
+    cached step 2 fixed, only the output stage reads ``[structure]`` here (the output tree, the
+    leaf split of session 57)."""
+    joints = [apply_overrides({"joints": {k: x for k, x in v.items() if k != "structure"}}).joints
+              for v in variants]
+    structure = [apply_overrides({"structure": v.get("structure", {})}).structure
+                 for v in variants]
+    return joints, structure
+
+
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cache", required=True, help="directory of the cached step-3 inputs")
@@ -165,13 +178,7 @@ def main(argv: list[str]) -> int:
     a = ap.parse_args(argv)
     sequences, only = chosen(ap, a)
     variants = [json.loads(v) for v in a.variants] or [{}]
-    # a variant's "structure" key overrides [structure]: only the output stage reads it here
-    # (the output tree, the leaf split), since the cached step 2 is fixed
-    cfgs: list[JointsConfig] = [
-        apply_overrides({"joints": {k: x for k, x in v.items() if k != "structure"}}).joints
-        for v in variants]
-    structure_cfgs: list[StructureConfig] = [
-        apply_overrides({"structure": v.get("structure", {})}).structure for v in variants]
+    cfgs, structure_cfgs = variant_configs(variants)
     rows: dict[int, list[tuple[float, ...]]] = {k: [] for k in range(len(variants))}
     print(f"{'sequence':<24} " + " | ".join(
         f"variant {k}: rec/prec raw norm depth lateral-rec (s)" for k in range(len(variants))))

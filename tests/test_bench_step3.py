@@ -7,11 +7,14 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
-from bench_step3 import depth_bias  # noqa: E402
+from bench_step3 import depth_bias, variant_configs  # noqa: E402
 
+from pointrig.config import JointsConfig, StructureConfig  # noqa: E402
+from pointrig.errors import ConfigError  # noqa: E402
 from pointrig.evaluate import evaluate  # noqa: E402
 
 
@@ -70,3 +73,13 @@ def test_lateral_recall_leaves_out_the_depth_along_the_ray() -> None:
     assert abs(lateral_recall(pred, syn, rep) - 2 / 3) < 1e-12
     exact = evaluate(gt, gt, parents, threshold=0.2)
     assert lateral_recall(gt, syn, exact) == 1.0
+
+
+def test_variant_configs_split_joints_and_structure_keys() -> None:
+    joints, structure = variant_configs([{}, {"joint_prior": 0.3},
+                                         {"structure": {"leaf_split_angle_deg": 0}}])
+    assert joints[0] == JointsConfig() and structure[0] == StructureConfig()
+    assert joints[1].joint_prior == 0.3 and structure[1] == StructureConfig()
+    assert joints[2] == JointsConfig() and structure[2].leaf_split_angle_deg == 0
+    with pytest.raises(ConfigError):
+        variant_configs([{"structure": {"no_such_key": 1}}])
