@@ -1557,19 +1557,21 @@ def split_bent_leaves(rest_points: np.ndarray, labels: np.ndarray, bone_parent: 
         idx = np.flatnonzero(labels == b)
         if len(idx) < max(cfg.leaf_split_min_points, 4):
             continue
-        angle, bend, lu, lv, geo = leaf_bend(Q[idx], joints[b])
+        Xb = Q[idx]
+        angle, bend, lu, lv, geo = leaf_bend(Xb, joints[b])
         if angle < cfg.leaf_split_angle_deg \
                 or min(lu, lv) < cfg.leaf_split_min_fraction * (lu + lv) \
                 or lv < cfg.leaf_split_min_length * size:
             continue
-        g_bend = geo[int(np.argmin(np.linalg.norm(Q[idx] - bend, axis=1)))]
-        far = idx[geo > g_bend]
-        if len(far) < 4 or len(idx) - len(far) < 4:
+        distal = geo > geo[int(np.argmin(np.linalg.norm(Xb - bend, axis=1)))]
+        if min(distal.sum(), (~distal).sum()) < 4:
             continue
-        one = _rigid_residual(Q[idx], Y[:, idx], np.zeros(len(idx)))
+        Yb = Y[:, idx]
+        one = _rigid_residual(Xb, Yb, np.zeros(len(idx)))
         if np.sqrt(one / (len(Y) * len(idx))) < 1e-3 * size:
             continue  # one rigid motion explains the leaf (noise-free input): nothing bends
-        two = _rigid_residual(Q[idx], Y[:, idx], geo > g_bend)
+        two = _rigid_residual(Xb, Yb, distal)
+        far = idx[distal]
         if two <= cfg.leaf_split_max_ratio * one:
             found.append((two / one, b, angle, far, np.asarray(bend, dtype=float)))
     # a user's cap on the joints (max_joints) holds: the clearest splits first
