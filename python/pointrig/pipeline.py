@@ -157,7 +157,7 @@ def output_skeleton(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np
 
     parent, joints_rest = struct_mod.output_tree(rest_points, labels, bone_parent, joints_rest,
                                                  config.structure, view_camera)
-    if observed is not None and config.structure.leaf_split_angle_deg > 0:
+    if observed is not None:
         labels, parent, joints_rest, source = struct_mod.split_bent_leaves(
             rest_points, labels, parent, joints_rest, observed[1], config.structure)
         if len(source) > R.shape[1]:

@@ -1437,7 +1437,7 @@ def _geodesic_from(X: np.ndarray, source: np.ndarray, k: int = 8) -> np.ndarray:
     geo = dijkstra(graph, directed=False, indices=s)
     if np.isfinite(geo).mean() < 0.8:
         return np.linalg.norm(X - source, axis=1)
-    return np.where(np.isfinite(geo), geo, np.inf)
+    return geo  # unreached points: inf
 
 
 def leaf_bend(points: np.ndarray, head: np.ndarray, n_bins: int = 10
