@@ -14,6 +14,7 @@ from pointrig.config import PipelineConfig, PreprocessConfig, RegistrationConfig
 from pointrig.errors import ConfigError, EmptyFrameError
 from pointrig.pipeline import extract
 from pointrig.preprocess import (
+    knn_graph,
     remove_sparse_frames,
     remove_sparse_points,
     remove_statistical_outliers,
@@ -139,3 +140,24 @@ def test_extract_uses_the_cleaned_frames_and_records_both_counts(tmp_path) -> No
 def test_frame_sparse_parameters_are_checked_when_the_config_is_made(kw) -> None:
     with pytest.raises(ConfigError, match=r"\[preprocess\] sparse_"):
         PreprocessConfig(**kw)
+
+
+@pytest.mark.parametrize("cap", [None, 1.2])
+def test_knn_graph_is_the_brute_force_neighbour_graph(cap) -> None:
+    rng = np.random.default_rng(3)
+    X = rng.normal(size=(120, 3))
+    X[:40] *= 0.2  # a dense clump, so a cap cuts some edges
+    k = 6
+    D = np.linalg.norm(X[:, None] - X[None], axis=2)
+    np.fill_diagonal(D, np.inf)
+    nearest = np.argsort(D, axis=1)[:, :k]
+    kth = np.sort(D, axis=1)[:, k - 1]
+    want = np.zeros_like(D)
+    for i in range(len(X)):
+        for j in nearest[i]:
+            if cap is None or D[i, j] <= cap * np.median(kth):
+                want[i, j] = D[i, j]
+    G = knn_graph(X, k, cap=cap).toarray()
+    np.testing.assert_allclose(G, want, rtol=0, atol=1e-12)
+    if cap is not None:
+        assert 0 < np.count_nonzero(G) < len(X) * k

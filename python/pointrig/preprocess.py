@@ -31,6 +31,7 @@ __all__ = [
     "mls_project",
     "farthest_point_sampling",
     "chamfer_misfit",
+    "knn_graph",
     "rest_surface",
     "BackgroundPlane",
     "BackgroundReport",
@@ -624,6 +625,22 @@ def mean_spacing(points: np.ndarray) -> float:
     """Mean nearest-neighbour distance of ``points (N, 3)``, metres (the rest points' spacing
     that the registration's and the tracker's length scales refer to)."""
     return float(np.mean(_nn_distances(points)))
+
+
+def knn_graph(points: np.ndarray, k: int = 8, cap: float | None = None) -> Any:
+    """The ``k``-nearest-neighbour graph of ``points (N, 3)`` as a sparse ``(N, N)`` CSR matrix
+    of edge lengths in metres, each point to its ``min(k, N - 1)`` nearest other points (for
+    ``scipy.sparse.csgraph``, read as undirected). With ``cap``, edges longer than ``cap`` times
+    the median ``k``-th neighbour distance are left out (no bridges across gaps)."""
+    from scipy.sparse import csr_matrix
+
+    n = len(points)
+    d, idx = cKDTree(points).query(points, k=min(k + 1, n))
+    d, idx = d[:, 1:], idx[:, 1:]
+    ok = np.ones(d.size, dtype=bool) if cap is None else \
+        (d <= cap * float(np.median(d[:, -1]))).ravel()
+    rows = np.repeat(np.arange(n), d.shape[1])[ok]
+    return csr_matrix((d.ravel()[ok], (rows, idx.ravel()[ok])), shape=(n, n))
 
 
 def _nn_distances(points: np.ndarray) -> np.ndarray:

@@ -37,6 +37,7 @@ from .preprocess import (
     chamfer_misfit,
     estimate_normals,
     farthest_point_sampling,
+    knn_graph,
     mean_spacing,
     rest_surface,
     surface_cover,
@@ -211,15 +212,9 @@ def _geodesic_filter(rest: np.ndarray, node_idx: np.ndarray, edges: np.ndarray,
     (shortest path over the k-NN graph of the rest points, neighbours within twice the median
     k-th neighbour distance) is at most ``ratio`` times their Euclidean length, plus edges
     between nodes the graph does not connect (fragments)."""
-    from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components, dijkstra
 
-    M = len(rest)
-    d, idx = cKDTree(rest).query(rest, k=min(k + 1, M))
-    d, idx = d[:, 1:], idx[:, 1:]
-    ok = (d <= 2.0 * float(np.median(d[:, -1]))).ravel()
-    rows = np.repeat(np.arange(M), d.shape[1])[ok]
-    G = coo_matrix((d.ravel()[ok], (rows, idx.ravel()[ok])), shape=(M, M)).tocsr()
+    G = knn_graph(rest, k, cap=2.0)
     eu = np.linalg.norm(rest[node_idx[edges[:, 0]]] - rest[node_idx[edges[:, 1]]], axis=1)
     src = np.unique(edges[:, 0])
     geo = dijkstra(G, directed=False, indices=node_idx[src], limit=ratio * float(eu.max()) + 1e-12)

@@ -47,6 +47,7 @@ from .config import StructureConfig
 from .errors import ConfigError, FormatError, InputError
 from .io.atomic import write_npz
 from .kinematics import joint_trajectories, solve_joint_positions
+from .preprocess import knn_graph
 from .skeleton import Skeleton
 from .view import SINGLE_VIEW_MAX_TWO_LAYER, in_view, two_layer_fraction, view_depth_correct
 
@@ -1425,14 +1426,9 @@ def _geodesic_from(X: np.ndarray, source: np.ndarray, k: int = 8) -> np.ndarray:
     """``(n,)`` distances (metres) from the point of ``X (n, 3)`` nearest ``source`` over the
     ``k``-nearest-neighbour graph of ``X``; the Euclidean distance to ``source`` where the graph
     leaves more than a fifth of the points unreached (a piece seen in parts)."""
-    from scipy.sparse import csr_matrix
     from scipy.sparse.csgraph import dijkstra
-    from scipy.spatial import cKDTree
 
-    n = len(X)
-    dd, ii = cKDTree(X).query(X, k=min(k + 1, n))
-    rows = np.repeat(np.arange(n), ii.shape[1] - 1)
-    graph = csr_matrix((dd[:, 1:].ravel(), (rows, ii[:, 1:].ravel())), shape=(n, n))
+    graph = knn_graph(X, k)
     s = int(np.argmin(np.linalg.norm(X - source, axis=1)))
     geo = dijkstra(graph, directed=False, indices=s)
     if np.isfinite(geo).mean() < 0.8:
