@@ -21,6 +21,8 @@ from . import _core
 from .errors import EmptyFrameError, InputError
 
 if TYPE_CHECKING:
+    from scipy.sparse import csr_matrix
+
     from .sequence import PointSequence
 
 __all__ = [
@@ -627,7 +629,7 @@ def mean_spacing(points: np.ndarray) -> float:
     return float(np.mean(_nn_distances(points)))
 
 
-def knn_graph(points: np.ndarray, k: int = 8, cap: float | None = None) -> Any:
+def knn_graph(points: np.ndarray, k: int = 8, cap: float | None = None) -> csr_matrix:
     """The ``k``-nearest-neighbour graph of ``points (N, 3)`` as a sparse ``(N, N)`` CSR matrix
     of edge lengths in metres, each point to its ``min(k, N - 1)`` nearest other points (for
     ``scipy.sparse.csgraph``, read as undirected). With ``cap``, edges longer than ``cap`` times
