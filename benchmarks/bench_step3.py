@@ -58,7 +58,7 @@ from pointrig.config import (  # noqa: E402
 )
 from pointrig.evaluate import match_pairs  # noqa: E402
 from pointrig.joints import learn_joints  # noqa: E402
-from pointrig.pipeline import extract, output_skeleton  # noqa: E402
+from pointrig.pipeline import extract, output_skeleton, retrack_structure  # noqa: E402
 from pointrig.skeleton import Skeleton  # noqa: E402
 
 
@@ -87,16 +87,21 @@ def cached_inputs(name: str, syn: Any, cache: Path) -> dict[str, Any]:
 
 def step3_skeleton(d: dict[str, Any], structure: Any, joints_cfg: JointsConfig,
                    structure_cfg: StructureConfig) -> tuple[Skeleton, float]:
-    """Step 3 on the cached inputs ``d`` (:func:`cached_inputs`) with ``structure``, and the
-    skeleton as the pipeline outputs it (:func:`pointrig.pipeline.output_skeleton`: the output
+    """Step 3 on the cached inputs ``d`` (:func:`cached_inputs`) with ``structure`` (twice with
+    ``[joints] retrack``, :func:`pointrig.pipeline.retrack_structure`), and the skeleton as the
+    pipeline outputs it (:func:`pointrig.pipeline.output_skeleton`: the output
     tree, the joint-depth pass on the cached frames and registration, the bones' rolls);
     returns it and step 3's seconds."""
     t0 = time.perf_counter()
     jr = learn_joints(d["frames"], d["rest"], d["regpts"], structure, joints_cfg,
                       rest_index=d["rest_index"])
+    cfg = PipelineConfig(structure=structure_cfg, joints=joints_cfg)
+    pivots = retrack_structure(structure, jr, d["frames"], d["regpts"], cfg)
+    if pivots is not None:  # the pipeline's second final step 3 ([joints] retrack)
+        jr = learn_joints(d["frames"], d["rest"], d["regpts"], pivots, joints_cfg,
+                          rest_index=d["rest_index"])
     secs = time.perf_counter() - t0
     labels = np.argmax(jr.weights, 1)
-    cfg = PipelineConfig(structure=structure_cfg, joints=joints_cfg)
     return output_skeleton(d["rest"], labels, structure.bone_parent, jr.joints_rest, jr.R,
                            jr.T, jr.weights, cfg, structure.view_camera,
                            observed=(d["frames"], d["regpts"])), secs

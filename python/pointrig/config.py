@@ -517,6 +517,20 @@ class JointsConfig:
     depth_points: str = "visible"
     depth_direction: str = "both"
     depth_frames: int = 10
+    # --- the final step 3 once more about depth-corrected pivots (measured, off by default;
+    # docs/joints.md "Session 59") ---
+    # the tracker holds step 2's joints fixed as the bones' pivots: with the exact bone
+    # rotations about them the human's template is 3-5 cm off in the frames farthest from the
+    # rest frame. "chord": after the final step 3, its joints are moved along the camera ray by
+    # the output depth pass (as joint_depth = "chord", with depth_points / depth_direction /
+    # depth_frames) and step 3 runs once more with them as the tracker's pivots and the EM's
+    # start (step 2's segmentation, motions and joint prior unchanged; single-view input
+    # only); "off": one final step 3. Costs one more step 3 (about 8 s a 100-frame sequence on
+    # 2 cores). benchmarks/bench_step3.py, off -> chord: suite recall 0.892 -> 0.897,
+    # normalised 2.66 -> 2.63 cm; spread 0.567 -> 0.579, 2.96 -> 2.97 cm; validation 0.791 ->
+    # 0.791, 2.76 -> 2.78 cm (41 sequences: 5 joints gained, 2 lost): within what rounding
+    # moves, so not the default
+    retrack: str = "off"
     # --- initial bone transforms (our deviation, docs/joints.md session 14) ---
     # "track": before the EM, step 2's skeleton is tracked through the observed frames, frame
     # by frame outwards from the rest frame (constant-velocity prediction, coarse-to-fine
@@ -552,7 +566,7 @@ class JointsConfig:
             "weight_candidates": ("tree", "all"), "bone_twist": ("minimal", "fit"),
             "joint_depth": ("chord", "off"),
             "depth_points": ("visible", "consensus", "all", "adjacent", "child"),
-            "depth_direction": ("both", "back")})
+            "depth_direction": ("both", "back"), "retrack": ("chord", "off")})
         if not (isinstance(self.depth_frames, int) and not isinstance(self.depth_frames, bool)
                 and self.depth_frames >= 1):
             raise ConfigError("[joints] depth_frames must be an integer >= 1, "

@@ -32,7 +32,8 @@ from .sequence import PointSequence, check_units
 from .skeleton import Skeleton
 from .view import view_depth_joints
 
-__all__ = ["ExtractResult", "extract", "build_skeleton", "output_skeleton"]
+__all__ = ["ExtractResult", "extract", "build_skeleton", "output_skeleton",
+           "retrack_structure"]
 
 log = logging.getLogger(__name__)
 
@@ -107,6 +108,53 @@ def _split_weights(weights: np.ndarray, labels: np.ndarray, source: np.ndarray) 
         out[moved, b] = W[moved, source[b]]
         out[moved, source[b]] = 0.0
     return out
+
+
+def retrack_structure(structure: Any, joints: Any, frames: Sequence[np.ndarray],
+                      registered: np.ndarray, config: PipelineConfig) -> Any | None:
+    """Step 2's structure with step 3's joints moved to their parts' axis depth as its joints,
+    for one more step 3 about them (``[joints] retrack = "chord"``), or ``None`` (no retrack).
+
+    The tracker of step 3 (:func:`pointrig.joints.track_bones`) holds the structure's joints
+    fixed as the bones' pivots, and the EM starts from them. Step 2's joints lie in front of
+    the parts' axes along the camera ray (docs/joints.md "Session 42"); here they are replaced
+    by step 3's joints moved along the ray by the output depth pass
+    (:func:`pointrig.view.view_depth_joints` with ``[joints] depth_points``,
+    ``depth_direction`` and ``depth_frames``). Everything else of the structure (segmentation,
+    tree, motions, joint prior ``c_tilde``) is kept. docs/joints.md ("Session 59").
+
+    Parameters
+    ----------
+    structure
+        Step 2's result (:class:`pointrig.structure.StructureResult`) that step 3 ran on.
+    joints
+        That step 3's result (:class:`pointrig.joints.JointsResult`): weights ``(M, B)``,
+        ``joints_rest (B, 3)`` (metres), ``R (F, B, 3, 3)``, ``T (F, B, 3)``.
+    frames
+        The ``F`` observed clouds ``(N_t, 3)``, camera frame, metres.
+    registered
+        ``(F, M, 3)`` the registration's points that step 3 ran on, metres.
+    config
+        The pipeline's parameters (``[joints]`` is read).
+
+    Returns
+    -------
+    StructureResult or None
+        The structure with the moved joints; ``None`` when ``retrack`` is ``"off"`` or the
+        input is not one view (``structure.view_camera`` is ``None``).
+    """
+    import dataclasses
+
+    cfg = config.joints
+    camera = getattr(structure, "view_camera", None)
+    if cfg.retrack != "chord" or camera is None:
+        return None
+    labels = np.argmax(joints.weights, axis=1)
+    moved, _ = view_depth_joints(frames, registered, labels, structure.bone_parent,
+                                 joints.joints_rest, joints.R, joints.T, camera,
+                                 n_frames=cfg.depth_frames, points=cfg.depth_points,
+                                 direction=cfg.depth_direction)
+    return dataclasses.replace(structure, joints_rest=moved)
 
 
 def output_skeleton(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np.ndarray,
@@ -276,13 +324,13 @@ def extract(
         # ---- step 3: joint learning ------------------------------------------------------
         rest_index = reg.params.get("rest_frame_index") if reg.params else None
 
-        def step3(r: Any, structure: Any) -> Any:
+        def step3(r: Any, structure: Any, what: str = "") -> Any:
             t0 = time.perf_counter()
             out3 = joints_mod.learn_joints(
                 seq.frames, r.rest_points, r.points, structure, config.joints,
-                progress=report("joints"),
+                progress=report("joints" + what),
                 rest_index=None if rest_index is None else int(rest_index),
-                track_progress=report("tracking"))
+                track_progress=report("tracking" + what))
             timings["joints"] = timings.get("joints", 0.0) + time.perf_counter() - t0
             return out3
 
@@ -303,6 +351,11 @@ def extract(
             jr = step3(refined, st)
             result.structure = st
             result.refined_registration = refined
+        # ---- the final step 3 once more about depth-corrected pivots (session 59) --------
+        last = result.refined_registration or reg
+        st_pivots = retrack_structure(st, jr, seq.frames, last.points, config)
+        if st_pivots is not None:
+            jr = step3(last, st_pivots, " (pivots)")
         result.joints = jr
         weights, labels = jr.weights, np.argmax(jr.weights, axis=1)
         joints_rest, R, T = jr.joints_rest, jr.R, jr.T
