@@ -18,7 +18,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal
 
@@ -143,8 +143,6 @@ def retrack_structure(structure: Any, joints: Any, frames: Sequence[np.ndarray],
         The structure with the moved joints; ``None`` when ``retrack`` is ``"off"`` or the
         input is not one view (``structure.view_camera`` is ``None``).
     """
-    import dataclasses
-
     cfg = config.joints
     camera = getattr(structure, "view_camera", None)
     if cfg.retrack != "chord" or camera is None:
@@ -154,7 +152,7 @@ def retrack_structure(structure: Any, joints: Any, frames: Sequence[np.ndarray],
                                  joints.joints_rest, joints.R, joints.T, camera,
                                  n_frames=cfg.depth_frames, points=cfg.depth_points,
                                  direction=cfg.depth_direction)
-    return dataclasses.replace(structure, joints_rest=moved)
+    return replace(structure, joints_rest=moved)
 
 
 def output_skeleton(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np.ndarray,
