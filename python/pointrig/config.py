@@ -528,8 +528,8 @@ class JointsConfig:
     # only); "off": one final step 3. Costs one more step 3 (the 100-frame human of the
     # README: 35.3 -> 42.3 s on 2 cores). benchmarks/bench_step3.py, off -> chord: suite
     # recall 0.892 -> 0.897, normalised 2.66 -> 2.63 cm; spread 0.567 -> 0.579, 2.96 -> 2.97
-    # cm; validation 0.791 -> 0.791, 2.76 -> 2.78 cm (41 sequences: 5 joints gained, 2 lost):
-    # within what rounding moves, so not the default
+    # cm; validation 0.791 -> 0.791, 2.76 -> 2.78 cm; fresh 0.624 -> 0.658, 2.70 -> 3.28 cm
+    # (50 sequences: 7 joints gained, 2 lost): within what rounding moves, so not the default
     retrack: str = "off"
     # --- initial bone transforms (our deviation, docs/joints.md session 14) ---
     # "track": before the EM, step 2's skeleton is tracked through the observed frames, frame
