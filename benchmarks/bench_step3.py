@@ -21,8 +21,12 @@ the offsets along the ray left out, :func:`lateral_recall`), then the means per 
         '{"joint_prior": 0.3}'
     PYTHONPATH=python python benchmarks/bench_step3.py --cache /tmp/step3 --only human,girl_run
     PYTHONPATH=python python benchmarks/bench_step3.py --cache /tmp/step3 --set validation
+    PYTHONPATH=python python benchmarks/bench_step3.py --cache /tmp/step3 --only girl_run --joints
     PYTHONPATH=python python benchmarks/bench_step3.py --cache /tmp/step3 '{}' \\
         '{"structure": {"leaf_split_angle_deg": 0}}'
+
+``--joints`` adds each matched joint's normalised error over tenths of the frames
+(:func:`error_over_time`, the first variant).
 
 A variant's ``"structure"`` key overrides ``[structure]``; with the cached step 2 fixed, only
 the output stage reads it (the output tree, the leaf split of session 57).
@@ -160,6 +164,26 @@ def lateral_recall(joint_positions: np.ndarray, syn: Any, report: Any) -> float:
     return len(match_pairs(cost, report.threshold)) / len(cols)
 
 
+def error_over_time(joint_positions: np.ndarray, syn: Any, report: Any, bins: int = 10
+                    ) -> dict[str, np.ndarray]:
+    """Each matched scorable joint's normalised error over ``bins`` consecutive stretches of
+    the frames: ``{true joint name: (bins,) metres}``. The pair's mean offset over all frames
+    is taken out, as the evaluation's normalised error does
+    (:func:`pointrig.evaluate.pair_errors`), then ``|offset_t|`` is averaged within each
+    stretch (``numpy.array_split`` of the frames). With ``F`` divisible by ``bins``, the mean
+    of the stretches is the joint's normalised error. A loss that grows away from the rest
+    frame and one that comes back with every stride (docs/joints.md "Session 60") look the
+    same in the total and differ here."""
+    out: dict[str, np.ndarray] = {}
+    for i, row in enumerate(report.rows):
+        if not row.scorable or row.matched < 0:
+            continue
+        e = joint_positions[:, row.matched] - syn.gt_joints[:, i]
+        n = np.linalg.norm(e - e.mean(axis=0), axis=1)
+        out[row.name] = np.array([c.mean() for c in np.array_split(n, bins)])
+    return out
+
+
 def variant_configs(variants: list[dict[str, Any]]
                     ) -> tuple[list[JointsConfig], list[StructureConfig]]:
     """Each variant's ``[joints]`` and ``[structure]`` parameters: its keys override
@@ -179,6 +203,9 @@ def main(argv: list[str]) -> int:
     add_set_option(ap)
     ap.add_argument("--only", default="", help="comma-separated sequence names")
     ap.add_argument("--frames", type=int, default=100)
+    ap.add_argument("--joints", action="store_true",
+                    help="also print each matched joint's normalised error over tenths of the "
+                         "frames (the first variant)")
     ap.add_argument("variants", nargs="*", help="JSON [joints] overrides per variant")
     a = ap.parse_args(argv)
     sequences, only = chosen(ap, a)
@@ -192,6 +219,7 @@ def main(argv: list[str]) -> int:
         d = cached_inputs(name, syn, Path(a.cache))
         st = d["structure"]
         cells = []
+        per_joint: dict[str, np.ndarray] = {}
         for k, cfg in enumerate(cfgs):
             sk, secs = step3_skeleton(d, st, cfg, structure_cfgs[k])
             r = score_joints(sk.joint_positions, syn)
@@ -204,7 +232,14 @@ def main(argv: list[str]) -> int:
                          f"({secs:3.0f})")
             if cfg == JointsConfig() and structure_cfgs[k] == StructureConfig():
                 gap.append(pipeline_gap(sk.joint_positions, d["default_P"]))
+            if a.joints and k == 0:
+                per_joint = error_over_time(sk.joint_positions, syn, r)
         print(f"{name:<24} " + " | ".join(cells), flush=True)
+        if a.joints:
+            print(f"  (rest frame {d['rest_index']}; normalised cm, whole clip | each tenth)")
+            for jn, v in per_joint.items():
+                print(f"  {jn:<20} {100 * v.mean():5.1f} | "
+                      + " ".join(f"{100 * x:4.1f}" for x in v))
     if not rows[0]:
         return 0
     if gap:

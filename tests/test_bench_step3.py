@@ -83,3 +83,28 @@ def test_variant_configs_split_joints_and_structure_keys() -> None:
     assert joints[2] == JointsConfig() and structure[2].leaf_split_angle_deg == 0
     with pytest.raises(ConfigError):
         variant_configs([{"structure": {"no_such_key": 1}}])
+
+
+def test_error_over_time_splits_the_normalised_error_by_stretches_of_frames() -> None:
+    """A prediction = truth + a constant offset (taken out) + a 4 cm error in the last quarter
+    of 20 frames at joint 1: the mean offset moves 1 cm, so frames 0-14 are 1 cm off it and
+    frames 15-19 3 cm; tenths of two frames: 1 cm seven times, then 2 cm (frames 14-15), then
+    3 cm twice. The mean of the tenths is the evaluation's normalised error; joint 0 has none;
+    an unmatched joint is left out."""
+    from bench_step3 import error_over_time
+
+    rng = np.random.default_rng(3)
+    F = 20
+    gt = np.stack([np.array([0.0, 0.0, 2.0]), np.array([0.3, -0.2, 2.1]),
+                   np.array([-0.25, 0.3, 1.9])])[None] + 0.05 * rng.normal(size=(F, 3, 3))
+    pred = gt + np.array([0.01, -0.02, 0.03])  # constant offset: no normalised error
+    pred[15:, 1] += np.array([0.04, 0.0, 0.0])
+    pred[:, 2] += 3.0  # unmatched
+    rep = evaluate(pred, gt, np.array([-1, 0, 0]), threshold=0.2)
+    syn = SimpleNamespace(gt_joints=gt)
+    out = error_over_time(pred, syn, rep, bins=10)
+    names = [r.name for r in rep.rows]
+    assert set(out) == {names[0], names[1]}
+    assert np.allclose(out[names[0]], 0.0, atol=1e-12)
+    assert np.allclose(out[names[1]], [0.01] * 7 + [0.02, 0.03, 0.03], atol=1e-12)
+    assert abs(out[names[1]].mean() - rep.rows[1].normalized_error) < 1e-12
