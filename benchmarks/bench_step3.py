@@ -236,7 +236,8 @@ def main(argv: list[str]) -> int:
                 per_joint = error_over_time(sk.joint_positions, syn, r)
         print(f"{name:<24} " + " | ".join(cells), flush=True)
         if a.joints:
-            print(f"  (rest frame {d['rest_index']}; normalised cm: mean of the tenths | each tenth)")
+            print(f"  (rest frame {d['rest_index']}; normalised cm: mean of the tenths | "
+                  "each tenth)")
             for jn, v in per_joint.items():
                 print(f"  {jn:<20} {100 * v.mean():5.1f} | "
                       + " ".join(f"{100 * x:4.1f}" for x in v))
