@@ -60,7 +60,7 @@ from pointrig.config import (  # noqa: E402
     StructureConfig,
     apply_overrides,
 )
-from pointrig.evaluate import match_pairs  # noqa: E402
+from pointrig.evaluate import match_pairs, normalized_offsets  # noqa: E402
 from pointrig.joints import learn_joints  # noqa: E402
 from pointrig.pipeline import extract, output_skeleton, retrack_structure  # noqa: E402
 from pointrig.skeleton import Skeleton  # noqa: E402
@@ -167,10 +167,9 @@ def lateral_recall(joint_positions: np.ndarray, syn: Any, report: Any) -> float:
 def error_over_time(joint_positions: np.ndarray, syn: Any, report: Any, bins: int = 10
                     ) -> dict[str, np.ndarray]:
     """Each matched scorable joint's normalised error over ``bins`` consecutive stretches of
-    the frames: ``{true joint name: (bins,) metres}``. The pair's mean offset over all frames
-    is taken out, as the evaluation's normalised error does
-    (:func:`pointrig.evaluate.pair_errors`), then ``|offset_t|`` is averaged within each
-    stretch (``numpy.array_split`` of the frames). With ``F`` divisible by ``bins``, the mean
+    the frames: ``{true joint name: (bins,) metres}``: the evaluation's per-frame offsets
+    (:func:`pointrig.evaluate.normalized_offsets`, the pair's mean offset taken out) averaged
+    within each stretch (``numpy.array_split`` of the frames). With ``F`` divisible by ``bins``, the mean
     of the stretches is the joint's normalised error. A loss that grows away from the rest
     frame and one that comes back with every stride (docs/joints.md "Session 60") look the
     same in the total and differ here."""
@@ -178,8 +177,7 @@ def error_over_time(joint_positions: np.ndarray, syn: Any, report: Any, bins: in
     for i, row in enumerate(report.rows):
         if not row.scorable or row.matched < 0:
             continue
-        e = joint_positions[:, row.matched] - syn.gt_joints[:, i]
-        n = np.linalg.norm(e - e.mean(axis=0), axis=1)
+        n = normalized_offsets(joint_positions[:, row.matched], syn.gt_joints[:, i])
         out[row.name] = np.array([c.mean() for c in np.array_split(n, bins)])
     return out
 

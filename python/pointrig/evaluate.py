@@ -65,7 +65,7 @@ import numpy as np
 from .errors import ConfigError, InputError
 
 __all__ = ["EvalReport", "JointRow", "evaluate", "evaluate_files", "match_pairs", "pair_errors",
-           "pivot_errors", "scorable_joints",
+           "normalized_offsets", "pivot_errors", "scorable_joints",
            "subject_size", "load_prediction", "SWING_FRACTION", "DUPLICATE_FRACTION",
            "THRESHOLD_FRACTION", "SWING_SOURCES"]
 
@@ -510,15 +510,23 @@ def match_pairs(cost: np.ndarray, threshold: float) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in zip(ri, ci) if cost[a, b] < threshold]
 
 
+def normalized_offsets(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
+    """``(F,)`` metres: each frame's ``|(p_t - g_t) - mean_s (p_s - g_s)|`` for one matched pair
+    of trajectories ``pred``, ``gt`` ``(F, 3)`` (metres); their mean over the frames is the
+    pair's normalised error (:func:`pair_errors`)."""
+    diff = np.asarray(pred, dtype=np.float64) - np.asarray(gt, dtype=np.float64)
+    return np.linalg.norm(diff - diff.mean(axis=0), axis=1)
+
+
 def pair_errors(pred: np.ndarray, gt: np.ndarray) -> tuple[float, float]:
     """Raw and normalised error (metres) of one matched pair of trajectories.
 
     ``pred``, ``gt``: ``(F, 3)`` metres. Raw = mean over frames of ``|p_t - g_t|``; normalised
     = the same after subtracting the pair's mean offset ``mean_t (p_t - g_t)`` (module
-    docstring)."""
+    docstring, :func:`normalized_offsets`)."""
     diff = np.asarray(pred, dtype=np.float64) - np.asarray(gt, dtype=np.float64)
     return (float(np.linalg.norm(diff, axis=1).mean()),
-            float(np.linalg.norm(diff - diff.mean(axis=0), axis=1).mean()))
+            float(normalized_offsets(pred, gt).mean()))
 
 
 def evaluate(pred_joints: np.ndarray, gt_joints: np.ndarray, gt_parents: np.ndarray, *,
