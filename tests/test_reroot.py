@@ -71,10 +71,7 @@ def _brute_force_eccentricity(Q, labels, parent, joints, quantile=1.0) -> np.nda
 
 
 def test_tree_centre_matches_a_brute_force_shortest_path_oracle() -> None:
-    rng = np.random.default_rng(0)
-    Q, labels, parent, joints = _stick_figure()
-    keep = rng.choice(len(Q), 160, replace=False)  # a small set for the oracle
-    Q, labels = Q[keep] + 0.01 * rng.normal(size=(160, 3)), labels[keep]
+    Q, labels, parent, joints = _noisy_stick_figure()
     centre, bone = tree_centre(Q, labels, parent, joints, quantile=1.0)
     ecc = _brute_force_eccentricity(Q, labels, parent, joints)
     best = int(np.argmin(ecc))
@@ -94,6 +91,47 @@ def test_tree_centre_of_a_big_headed_stick_figure_is_on_the_spine() -> None:
     assert bone == 1
     spacing = 0.6 / 59  # the spine's sample spacing
     assert abs(centre[1] - y) <= spacing and abs(centre[0]) < 1e-12
+
+
+def _noisy_stick_figure(n: int = 160) -> tuple[np.ndarray, ...]:
+    rng = np.random.default_rng(0)
+    Q, labels, parent, joints = _stick_figure()
+    keep = rng.choice(len(Q), n, replace=False)  # a small set for the oracle
+    return Q[keep] + 0.01 * rng.normal(size=(n, 3)), labels[keep], parent, joints
+
+
+@pytest.mark.parametrize("tolerance", [0.03, 0.05, 0.1])
+def test_tree_centre_with_a_tolerance_is_the_flat_regions_centroid_by_the_oracle(
+        tolerance: float) -> None:
+    Q, labels, parent, joints = _noisy_stick_figure()
+    centre, bone = tree_centre(Q, labels, parent, joints, quantile=1.0, tolerance=tolerance)
+    ecc = _brute_force_eccentricity(Q, labels, parent, joints)
+    flat = ecc <= ecc.min() + tolerance * np.linalg.norm(np.ptp(Q, axis=0))
+    assert flat.sum() > 1  # a region, not the one point of tolerance 0
+    np.testing.assert_allclose(centre, Q[flat].mean(axis=0), atol=1e-12)
+    assert bone == np.bincount(labels[flat]).argmax()
+
+
+def test_tree_centre_with_a_tolerance_keeps_a_mirror_symmetric_figure_on_its_plane() -> None:
+    """A figure and its mirror image x -> -x (legs and arms swap bones): the least eccentric
+    point is one of a mirrored pair off the plane; the flat region's centroid is on it."""
+    Q, labels, parent, joints = _noisy_stick_figure()
+    swap = np.array([0, 1, 3, 2, 5, 4])
+    Q2 = np.concatenate([Q, Q * np.array([-1.0, 1.0, 1.0])])
+    labels2 = np.concatenate([labels, swap[labels]])
+    assert np.all(joints[:, 0] == 0)  # the joints lie on the plane
+    point, _ = tree_centre(Q2, labels2, parent, joints, quantile=1.0)
+    assert abs(point[0]) > 1e-3
+    centre, _ = tree_centre(Q2, labels2, parent, joints, quantile=1.0, tolerance=0.01)
+    assert abs(centre[0]) < 1e-12
+
+
+def test_centre_tolerance_is_validated() -> None:
+    from pointrig.errors import ConfigError
+
+    for bad in (-0.1, 1.0, "0.02", True):
+        with pytest.raises(ConfigError, match="centre_tolerance"):
+            StructureConfig(centre_tolerance=bad)
 
 
 def test_leaf_root_tells_a_leaf_of_a_branched_tree_from_a_chain() -> None:

@@ -370,6 +370,12 @@ class StructureConfig:
     # output skeleton: a root that is a leaf of a branched tree (the largest part is a limb end,
     # e.g. a big head) moves to the body's centre ("centre"), or stays ("keep"); session 33
     leaf_root: str = "centre"
+    # the centre of "centre": the centroid of the rest points whose eccentricity through the
+    # tree lies within centre_tolerance x the rest points' bounding-box diagonal of the least
+    # (pointrig.structure.tree_centre; docs/structure.md "Session 61"), not the one point of
+    # least eccentricity (0, before): the minimum is flat across a figure's waist and the
+    # single point fell on an idle girl's hand at hip height
+    centre_tolerance: float = 0.0
     # output skeleton: the root joint (the visible root part's centre, or its end) moved back
     # along the camera ray to the body's axis depth by the width rule on the rest points within
     # 10 % of the size ("axis", session 38), or left on the visible surface ("surface", before)
@@ -417,6 +423,11 @@ class StructureConfig:
                 and self.max_joints >= 0):
             raise ConfigError("[structure] max_joints must be an integer >= 0 (0 = no cap), "
                               f"got {self.max_joints!r}")
+        if not (isinstance(self.centre_tolerance, (int, float))
+                and not isinstance(self.centre_tolerance, bool)
+                and 0.0 <= self.centre_tolerance < 1.0):
+            raise ConfigError("[structure] centre_tolerance must be a number in [0, 1), "
+                              f"got {self.centre_tolerance!r}")
 
 
 @dataclass(frozen=True)

@@ -65,6 +65,7 @@ __all__ = [
     "write_structure_outputs",
     "output_tree",
     "tree_centre",
+    "tree_eccentricity",
     "centre_root_joint",
     "root_axis_joint",
     "leaf_root",
@@ -1265,17 +1266,15 @@ def root_joint_position(rest_points: np.ndarray, labels: np.ndarray, root: int,
     return centre + axis * float(np.quantile((pts - centre) @ axis, 0.03))
 
 
-def tree_centre(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np.ndarray,
-                joints_rest: np.ndarray, quantile: float = 0.98) -> tuple[np.ndarray, int]:
-    """The rest point that minimises the farthest distance to the rest of the body *through
-    the bone tree*, and its bone.
+def tree_eccentricity(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np.ndarray,
+                      joints_rest: np.ndarray, quantile: float = 0.98) -> np.ndarray:
+    """Every rest point's farthest distance to the rest of the body *through the bone tree*.
 
     The distance from a point ``x`` of bone ``b`` to a point ``y`` of bone ``b'`` runs from
     ``x`` to the joint where the tree path leaves ``b``, along the path's joints, and from the
     joint where it enters ``b'`` to ``y`` (straight within one bone). A point's eccentricity is
     the largest such distance, each bone's far end taken as the ``quantile`` of its points'
-    distances (robust to stray points). On a figure it lies between the limbs' attachments
-    (a human's lower spine), whatever bone is largest.
+    distances (robust to stray points).
 
     Parameters
     ----------
@@ -1292,8 +1291,8 @@ def tree_centre(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np.nda
 
     Returns
     -------
-    point, bone
-        ``(3,)`` the centre (one of the rest points), metres, and the bone holding it.
+    ecc
+        ``(M,)`` metres; ``inf`` for a point whose label is not a bone.
     """
     from scipy.spatial.distance import cdist
 
@@ -1308,7 +1307,7 @@ def tree_centre(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np.nda
             adj[int(p)].append((k, k))
     pts = [Q[labels == b] for b in range(B)]
     far: dict[tuple[int, int], float] = {}  # (bone, entry joint) -> reach of its far end
-    best: tuple[float, np.ndarray, int] | None = None
+    out = np.full(len(Q), np.inf)
     for b in range(B):
         P = pts[b]
         if len(P) == 0:
@@ -1332,12 +1331,57 @@ def tree_centre(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np.nda
                     stack.append((nb, first, j,
                                   length + float(np.linalg.norm(joints_rest[j]
                                                                 - joints_rest[last]))))
-        i = int(np.argmin(ecc))
-        if best is None or ecc[i] < best[0]:
-            best = (float(ecc[i]), P[i].copy(), b)
-    if best is None:
+        out[labels == b] = ecc
+    return out
+
+
+def tree_centre(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np.ndarray,
+                joints_rest: np.ndarray, quantile: float = 0.98,
+                tolerance: float = 0.0) -> tuple[np.ndarray, int]:
+    """The body's centre through the bone tree and its bone.
+
+    With ``tolerance = 0``: the rest point that minimises the farthest distance to the rest of
+    the body through the bone tree (:func:`tree_eccentricity`). On a figure it lies between
+    the limbs' attachments (a human's lower spine), whatever bone is largest. The minimum is
+    flat across the body there, so which point wins can be decided by a stray lateral offset
+    of a joint: on an idle figure whose hanging arms are part of the torso's bone, it fell on
+    a hand at hip height (docs/structure.md "Session 61"). With ``tolerance > 0`` the centre
+    is the centroid of the whole flat region, the points whose eccentricity is within
+    ``tolerance`` times the rest points' bounding-box diagonal of the minimum, and its bone
+    the one holding most of them.
+
+    Parameters
+    ----------
+    rest_points
+        ``(M, 3)`` rest points, metres.
+    labels
+        ``(M,)`` bone of each point.
+    bone_parent
+        ``(B,)`` parent bone, ``-1`` at the root.
+    joints_rest
+        ``(B, 3)`` head joint of every bone, metres (the root's is not used).
+    quantile
+        In ``(0, 1]``.
+    tolerance
+        ``>= 0``, a fraction of the rest points' bounding-box diagonal.
+
+    Returns
+    -------
+    point, bone
+        ``(3,)`` the centre, metres (one of the rest points when ``tolerance = 0``), and its
+        bone.
+    """
+    Q = np.asarray(rest_points, dtype=float)
+    labels = np.asarray(labels, dtype=np.int64)
+    ecc = tree_eccentricity(Q, labels, bone_parent, joints_rest, quantile)
+    if not np.isfinite(ecc).any():
         raise InputError("tree_centre: no bone holds any rest point")
-    return best[1], best[2]
+    i = int(np.argmin(ecc))
+    if tolerance <= 0:
+        return Q[i].copy(), int(labels[i])
+    diag = float(np.linalg.norm(np.ptp(Q, axis=0)))
+    flat = ecc <= ecc[i] + tolerance * diag
+    return Q[flat].mean(axis=0), int(np.bincount(labels[flat]).argmax())
 
 
 def centre_root_joint(rest_points: np.ndarray, centre: np.ndarray,
@@ -1407,7 +1451,8 @@ def output_tree(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np.nda
             joints[root] = root_axis_joint(rest_points, joints[root], view_camera,
                                            cfg.view_depth_quantile, cfg.view_depth_method)
         return parent, joints
-    centre, bone = tree_centre(rest_points, labels, parent, joints_rest)
+    centre, bone = tree_centre(rest_points, labels, parent, joints_rest,
+                               tolerance=cfg.centre_tolerance)
     joint = centre_root_joint(rest_points, centre, view_camera, cfg.view_depth_quantile,
                               cfg.view_depth_method)
     log.info("root moved from bone %d (a leaf) to bone %d at the body's centre",
