@@ -182,6 +182,19 @@ def error_over_time(joint_positions: np.ndarray, syn: Any, report: Any, bins: in
     return out
 
 
+#: Subject sizes (metres, the evaluation's bounding-box diagonal of the true surface) of the
+#: "human-sized figures" the issue's targets are set on. Inside: the procedural human (2.39 m),
+#: upper body (1.64), quadruped (1.40) and snake (1.47), the girl (1.74 running) and
+#: rigged_figure (1.74); outside: the hand (0.24 m) and greenman (3.72 m, a giant).
+HUMAN_SIZED = (1.0, 3.0)
+
+
+def human_sized(size: float) -> bool:
+    """Whether a subject of ``size`` metres (:func:`pointrig.evaluate.subject_size`) is one of
+    the human-sized figures of the issue's targets (:data:`HUMAN_SIZED`, bounds included)."""
+    return bool(HUMAN_SIZED[0] <= size <= HUMAN_SIZED[1])
+
+
 def variant_configs(variants: list[dict[str, Any]]
                     ) -> tuple[list[JointsConfig], list[StructureConfig]]:
     """Each variant's ``[joints]`` and ``[structure]`` parameters: its keys override
@@ -224,7 +237,7 @@ def main(argv: list[str]) -> int:
             db = depth_bias(sk.joint_positions, syn, r)
             lr = lateral_recall(sk.joint_positions, syn, r)
             rows[k].append((r.recall, r.precision, 100 * r.raw_error, 100 * r.normalized_error,
-                            100 * db, lr))
+                            100 * db, lr, r.subject_size))
             cells.append(f"{r.recall:.2f}/{r.precision:.2f} {100 * r.raw_error:5.2f} "
                          f"{100 * r.normalized_error:5.2f} {100 * db:+5.2f} {lr:.2f} "
                          f"({secs:3.0f})")
@@ -250,6 +263,13 @@ def main(argv: list[str]) -> int:
               f"raw {v[ok, 2].mean():.2f} cm normalised {v[ok, 3].mean():.2f} cm depth bias "
               f"{np.nanmean(v[:, 4]):+.2f} cm lateral recall {np.nanmean(v[:, 5]):.3f}  "
               f"{json.dumps(variants[k])}")
+    hs = np.array([human_sized(x) for x in arr[0][:, 6]])
+    if hs.any():
+        print(f"\nhuman-sized figures (subject size {HUMAN_SIZED[0]}-{HUMAN_SIZED[1]} m, the "
+              f"targets' figures): {int(hs.sum())} of {len(hs)} sequences")
+        for k, v in arr.items():
+            print(f"variant {k}: recall {v[hs, 0].mean():.3f} precision {v[hs, 1].mean():.3f} "
+                  f"raw {v[hs & ok, 2].mean():.2f} cm normalised {v[hs & ok, 3].mean():.2f} cm")
     return 0
 
 

@@ -11,7 +11,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
-from bench_step3 import depth_bias, variant_configs  # noqa: E402
+from bench_step3 import depth_bias, human_sized, variant_configs  # noqa: E402
 
 from pointrig.config import JointsConfig, StructureConfig  # noqa: E402
 from pointrig.errors import ConfigError  # noqa: E402
@@ -108,3 +108,11 @@ def test_error_over_time_splits_the_normalised_error_by_stretches_of_frames() ->
     assert np.allclose(out[names[0]], 0.0, atol=1e-12)
     assert np.allclose(out[names[1]], [0.01] * 7 + [0.02, 0.03, 0.03], atol=1e-12)
     assert abs(out[names[1]].mean() - rep.rows[1].normalized_error) < 1e-12
+
+
+def test_human_sized_takes_the_human_and_the_girl_and_leaves_hand_and_greenman() -> None:
+    """Sizes of the benchmark's subjects: the idle girl (1.62 m) and the procedural human
+    (2.39 m) are in; the hand (0.24 m) and greenman (3.72 m) are out; bounds included."""
+    assert human_sized(1.62) and human_sized(2.39)
+    assert not human_sized(0.24) and not human_sized(3.72)
+    assert human_sized(1.0) and human_sized(3.0) and not human_sized(3.01)
