@@ -1352,16 +1352,8 @@ def tree_centre(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np.nda
 
     Parameters
     ----------
-    rest_points
-        ``(M, 3)`` rest points, metres.
-    labels
-        ``(M,)`` bone of each point.
-    bone_parent
-        ``(B,)`` parent bone, ``-1`` at the root.
-    joints_rest
-        ``(B, 3)`` head joint of every bone, metres (the root's is not used).
-    quantile
-        In ``(0, 1]``.
+    rest_points, labels, bone_parent, joints_rest, quantile
+        As for :func:`tree_eccentricity`.
     tolerance
         ``>= 0``, a fraction of the rest points' bounding-box diagonal.
 
