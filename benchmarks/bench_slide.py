@@ -66,16 +66,24 @@ def axial_offsets(points: np.ndarray, truth: np.ndarray, head: np.ndarray, tail:
     return a.mean(axis=1), np.linalg.norm(perp, axis=2).mean(axis=1)
 
 
+def nearest_samples(rest: np.ndarray, syn: Any, rest_index: int) -> np.ndarray:
+    """``(M,)`` index of each rest point's ``(M, 3)`` nearest exact surface sample of frame
+    ``rest_index`` (``syn.surface``, ``(F, S, 3)``): the tie to the truth of this benchmark."""
+    return cKDTree(syn.surface[rest_index]).query(rest)[1]
+
+
 def bone_slides(rest: np.ndarray, registered: np.ndarray, syn: Any, rest_index: int,
-                min_points: int = 10) -> list[tuple[str, int, np.ndarray, np.ndarray]]:
+                min_points: int = 10, nearest: np.ndarray | None = None
+                ) -> list[tuple[str, int, np.ndarray, np.ndarray]]:
     """:func:`axial_offsets` of every true bone with exactly one child joint.
 
     Each rest point ``(M, 3)`` is tied to its nearest exact surface sample of frame
-    ``rest_index`` (``syn.surface``, ``(F, S, 3)``) and takes that sample's bone
-    (``syn.surface_labels``); ``registered`` is ``(F, M, 3)``. Returns ``(bone name, points,
-    along (F,), across (F,))`` for the bones with at least ``min_points`` points, metres.
+    ``rest_index`` (:func:`nearest_samples`, or ``nearest`` when the caller has it) and takes
+    that sample's bone (``syn.surface_labels``); ``registered`` is ``(F, M, 3)``. Returns
+    ``(bone name, points, along (F,), across (F,))`` for the bones with at least
+    ``min_points`` points, metres.
     """
-    nn = cKDTree(syn.surface[rest_index]).query(rest)[1]
+    nn = nearest_samples(rest, syn, rest_index) if nearest is None else nearest
     lab = syn.surface_labels[nn]
     parents = np.asarray(syn.joint_parents)
     out = []
@@ -105,9 +113,9 @@ def main(argv: list[str]) -> int:
     for name, syn in suite(a.frames, only, sequences):
         d = cached_inputs(name, syn, Path(a.cache))
         r0 = int(d["rest_index"])
-        nn = cKDTree(syn.surface[r0]).query(d["rest"])[1]
+        nn = nearest_samples(d["rest"], syn, r0)
         corr = float(np.linalg.norm(d["regpts"] - syn.surface[:, nn], axis=2).mean())
-        rows = bone_slides(d["rest"], d["regpts"], syn, r0)
+        rows = bone_slides(d["rest"], d["regpts"], syn, r0, nearest=nn)
         for _, n, al, ac in rows:
             tot_along += n * float(np.abs(al).mean())
             tot_corr += n * float(np.hypot(al, ac).mean())
