@@ -116,8 +116,9 @@ def main(argv: list[str]) -> int:
                   f"{100 * np.nanmean(arr[:, k, 1]):4.2f}")
         bias = arr[:, 1, 0] - arr[:, 0, 0]
         start = arr[:, -1, 0] - arr[:, 1, 0]
-        print(f"  objective's bias (from exact - exact, first variant)  {100 * bias.mean():5.2f}"
-              f"\n  start's share (cached refined - from exact)           {100 * start.mean():5.2f}")
+        print(f"  objective's bias (from exact - exact, first variant)  "
+              f"{100 * bias.mean():5.2f}\n  start's share (cached refined - from exact)"
+              f"           {100 * start.mean():5.2f}")
     return 0
 
 

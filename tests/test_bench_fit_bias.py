@@ -53,9 +53,9 @@ def test_slide_summary_reads_a_known_slide_and_offset() -> None:
 
 def test_refine_from_the_exact_pose_stays_and_from_a_shifted_one_comes_back() -> None:
     """On the bending capsule arm, the refinement started from the true motion of the rest
-    points stays within 2 mm of it on average (0.3-0.7 mm measured); started from that motion shifted 3 cm across
-    the arm in every frame but the rest frame, it comes back to within half of the shift
-    (oracle: the capsules' material points)."""
+    points stays within 2 mm of it on average (0.3-0.7 mm measured); started from that motion
+    shifted 3 cm across the arm in every frame but the rest frame, it comes back to within
+    half of the shift (oracle: the capsules' material points)."""
     frames, truth = capsule_arm(6, 8.0, n=6000)
     cfg = RegistrationConfig(n_rest_points=800, n_nodes=60, mls_neighbors=0)
     r0 = 3
