@@ -36,8 +36,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_refine import add_set_option, chosen, suite  # noqa: E402
-from bench_slide import bone_slides, nearest_samples  # noqa: E402
+from bench_refine import add_cache_options, chosen, suite  # noqa: E402
+from bench_slide import bone_slides, correspondence, nearest_samples  # noqa: E402
 from bench_step3 import cached_inputs  # noqa: E402
 from bench_structure_oracle import exact_points  # noqa: E402
 
@@ -63,11 +63,11 @@ def refine_from(frames: list[np.ndarray], rest: np.ndarray, rest_index: int,
 def slide_summary(rest: np.ndarray, points: np.ndarray, syn: Any, rest_index: int,
                   nearest: np.ndarray) -> tuple[float, float, str]:
     """``(correspondence, mean |along|, worst bone)`` of registered ``points`` ``(F, M, 3)``:
-    the mean distance (metres) of every point to the exact motion of its nearest exact sample
-    (``nearest``, :func:`bench_slide.nearest_samples`), the point-weighted mean ``|along|``
+    :func:`bench_slide.correspondence` (metres; ``nearest`` from
+    :func:`bench_slide.nearest_samples`), the point-weighted mean ``|along|``
     slide over the true bones with one child (metres) and a label of the bone with the largest
     mean ``|along|`` (``"name mean/largest"`` cm)."""
-    corr = float(np.linalg.norm(points - syn.surface[:, nearest], axis=2).mean())
+    corr = correspondence(points, syn, nearest)
     rows = bone_slides(rest, points, syn, rest_index, nearest=nearest)
     if not rows:
         return corr, float("nan"), "-"
@@ -80,10 +80,7 @@ def slide_summary(rest: np.ndarray, points: np.ndarray, syn: Any, rest_index: in
 
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--cache", required=True, help="directory of bench_step3.py's cached inputs")
-    add_set_option(ap)
-    ap.add_argument("--only", default="", help="comma-separated sequence names")
-    ap.add_argument("--frames", type=int, default=100)
+    add_cache_options(ap)
     ap.add_argument("variants", nargs="*", default=["{}"],
                     help="JSON [registration] overrides of the refinement from the exact pose")
     a = ap.parse_args(argv)

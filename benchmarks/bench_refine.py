@@ -183,14 +183,26 @@ def add_set_option(ap: argparse.ArgumentParser) -> None:
                          "and spread sets, all four, or the single limbs")
 
 
-def add_variant_options(ap: argparse.ArgumentParser) -> None:
-    """Add the options of a benchmark that runs pipeline variants on a sequence set: the
-    positional JSON ``variants`` (default ``{}``), ``--frames``, ``--set``
-    (:func:`add_set_option`) and ``--only``."""
-    ap.add_argument("variants", nargs="*", default=["{}"], help="JSON overrides per variant")
+def add_sequence_options(ap: argparse.ArgumentParser) -> None:
+    """Add the options that choose the sequences: ``--frames`` (default 100), ``--set``
+    (:func:`add_set_option`) and ``--only`` (read back by :func:`chosen`)."""
     ap.add_argument("--frames", type=int, default=100)
     add_set_option(ap)
     ap.add_argument("--only", default="", help="comma-separated sequence names")
+
+
+def add_variant_options(ap: argparse.ArgumentParser) -> None:
+    """Add the options of a benchmark that runs pipeline variants on a sequence set: the
+    positional JSON ``variants`` (default ``{}``) and :func:`add_sequence_options`."""
+    ap.add_argument("variants", nargs="*", default=["{}"], help="JSON overrides per variant")
+    add_sequence_options(ap)
+
+
+def add_cache_options(ap: argparse.ArgumentParser) -> None:
+    """Add the options of a benchmark on ``bench_step3.py``'s cache: ``--cache DIR``
+    (required) and :func:`add_sequence_options`."""
+    ap.add_argument("--cache", required=True, help="directory of bench_step3.py's cached inputs")
+    add_sequence_options(ap)
 
 
 def selected(ap: argparse.ArgumentParser, only_arg: str,

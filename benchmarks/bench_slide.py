@@ -34,7 +34,7 @@ from scipy.spatial import cKDTree
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_refine import add_set_option, chosen, suite  # noqa: E402
+from bench_refine import add_cache_options, chosen, suite  # noqa: E402
 from bench_step3 import cached_inputs  # noqa: E402
 
 
@@ -72,6 +72,13 @@ def nearest_samples(rest: np.ndarray, syn: Any, rest_index: int) -> np.ndarray:
     return cKDTree(syn.surface[rest_index]).query(rest)[1]
 
 
+def correspondence(points: np.ndarray, syn: Any, nearest: np.ndarray) -> float:
+    """Mean distance (metres) of registered ``points`` ``(F, M, 3)`` to the exact motion of
+    each rest point's nearest exact sample of the rest frame (``nearest``
+    :func:`nearest_samples`, ``(M,)``): the correspondence error of this benchmark."""
+    return float(np.linalg.norm(points - syn.surface[:, nearest], axis=2).mean())
+
+
 def bone_slides(rest: np.ndarray, registered: np.ndarray, syn: Any, rest_index: int,
                 min_points: int = 10, nearest: np.ndarray | None = None
                 ) -> list[tuple[str, int, np.ndarray, np.ndarray]]:
@@ -100,10 +107,7 @@ def bone_slides(rest: np.ndarray, registered: np.ndarray, syn: Any, rest_index: 
 
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--cache", required=True, help="directory of bench_step3.py's cached inputs")
-    add_set_option(ap)
-    ap.add_argument("--only", default="", help="comma-separated sequence names")
-    ap.add_argument("--frames", type=int, default=100)
+    add_cache_options(ap)
     ap.add_argument("--frames-of", default="", help="also print this bone's along offsets")
     a = ap.parse_args(argv)
     sequences, only = chosen(ap, a)
@@ -114,7 +118,7 @@ def main(argv: list[str]) -> int:
         d = cached_inputs(name, syn, Path(a.cache))
         r0 = int(d["rest_index"])
         nn = nearest_samples(d["rest"], syn, r0)
-        corr = float(np.linalg.norm(d["regpts"] - syn.surface[:, nn], axis=2).mean())
+        corr = correspondence(d["regpts"], syn, nn)
         rows = bone_slides(d["rest"], d["regpts"], syn, r0, nearest=nn)
         for _, n, al, ac in rows:
             tot_along += n * float(np.abs(al).mean())

@@ -51,7 +51,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_refine import add_set_option, chosen, suite  # noqa: E402
+from bench_refine import add_cache_options, chosen, suite  # noqa: E402
 from bench_registration_downstream import score_joints  # noqa: E402
 
 from pointrig.config import (  # noqa: E402
@@ -210,10 +210,7 @@ def variant_configs(variants: list[dict[str, Any]]
 
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--cache", required=True, help="directory of the cached step-3 inputs")
-    add_set_option(ap)
-    ap.add_argument("--only", default="", help="comma-separated sequence names")
-    ap.add_argument("--frames", type=int, default=100)
+    add_cache_options(ap)
     ap.add_argument("--joints", action="store_true",
                     help="also print each matched joint's normalised error over tenths of the "
                          "frames (the first variant)")

@@ -42,7 +42,7 @@ from scipy.spatial import cKDTree
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_refine import add_set_option, chosen, suite  # noqa: E402
+from bench_refine import add_cache_options, chosen, suite  # noqa: E402
 from bench_registration_downstream import score_joints  # noqa: E402
 from bench_step3 import cached_inputs, step3_skeleton, summary  # noqa: E402
 
@@ -82,10 +82,7 @@ def structures(d: dict[str, Any], syn: Any, cfg: PipelineConfig) -> dict[str, An
 
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--cache", required=True, help="directory of the cached step-3 inputs")
-    add_set_option(ap)
-    ap.add_argument("--only", default="", help="comma-separated sequence names")
-    ap.add_argument("--frames", type=int, default=100)
+    add_cache_options(ap)
     a = ap.parse_args(argv)
     sequences, only = chosen(ap, a)
     cfg = PipelineConfig()
