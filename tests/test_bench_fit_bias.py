@@ -8,12 +8,13 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_fit_bias import refine_from, slide_summary  # noqa: E402
+from bench_slide import nearest_samples  # noqa: E402
+from bench_structure_oracle import exact_points  # noqa: E402
 from registration_helpers import capsule_arm  # noqa: E402
 
 from pointrig.config import RegistrationConfig  # noqa: E402
@@ -41,7 +42,7 @@ def test_slide_summary_reads_a_known_slide_and_offset() -> None:
     correspondence = 3 cm (half the points 6 cm off), the point-weighted mean |along| 3 cm,
     the worst bone the knee's at 6.0/6.0 cm."""
     rest, syn = _chain()
-    nn = cKDTree(syn.surface[1]).query(rest)[1]
+    nn = nearest_samples(rest, syn, 1)
     moved = syn.surface.copy()
     moved[:, 30:] += np.array([0.0, -0.06, 0.0])
     corr, along, worst = slide_summary(rest, moved, syn, 1, nn)
@@ -60,8 +61,7 @@ def test_refine_from_the_exact_pose_stays_and_from_a_shifted_one_comes_back() ->
     cfg = RegistrationConfig(n_rest_points=800, n_nodes=60, mls_neighbors=0)
     r0 = 3
     rest = rest_surface(frames[r0], 800, mls_neighbors=0)
-    s = cKDTree(truth[r0]).query(rest)[1]
-    exact = truth[:, s] + (rest - truth[r0, s])[None]
+    exact = exact_points(rest, truth, r0)
     err = np.linalg.norm(refine_from(frames, rest, r0, exact, cfg) - exact, axis=2)
     assert err.mean() < 0.002, err.mean(axis=1)
     shifted = exact + np.array([0.0, 0.03, 0.0])
