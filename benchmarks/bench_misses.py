@@ -1,4 +1,4 @@
-"""Why each missed joint is missed: hidden, shared, depth or placement.
+"""Why each missed joint is missed: hidden, shared, depth, placement or absent.
 
 The recall counts the scorable true joints that the evaluation's one-to-one matching gives an
 output joint closer than the threshold (mean distance over the frames). This benchmark sorts
@@ -12,7 +12,10 @@ every *missed* scorable joint into one cause, checked in this order:
   true joint: the skeleton is short of a joint there (two true joints, one output joint).
 * **depth**: the nearest output joint with the offsets along the camera ray left out (as
   ``bench_step3.lateral_recall`` measures) is within the threshold: depth alone loses it.
-* **placement**: none of these; the nearest output joint is too far across the ray as well.
+* **placement**: none of these, and the nearest output joint is within twice the threshold:
+  there is a joint, off across the ray as well.
+* **absent**: the nearest output joint is twice the threshold away or more: the skeleton has
+  no joint there (a limb end that got no bone of its own, a limb merged into its parent).
 
 On ``bench_step3.py``'s cache (step 3 rerun with the defaults on the cached inputs, as
 ``bench_step3.py`` scores it)::
@@ -45,7 +48,7 @@ from pointrig.config import JointsConfig, StructureConfig  # noqa: E402
 from pointrig.evaluate import match_pairs  # noqa: E402
 
 #: The causes, in the order they are checked.
-CAUSES = ("hidden", "shared", "depth", "placement")
+CAUSES = ("hidden", "shared", "depth", "placement", "absent")
 
 
 def bone_visibility(frames: list[np.ndarray], point_labels: list[np.ndarray],
@@ -121,7 +124,7 @@ def classify_misses(joint_positions: np.ndarray, gt_joints: np.ndarray,
     """
     cols = np.flatnonzero(scorable)
     if not len(cols) or joint_positions.shape[1] == 0:
-        return [(int(j), "hidden" if visibility[j] < hidden else "placement", -1,
+        return [(int(j), "hidden" if visibility[j] < hidden else "absent", -1,
                  float("inf")) for j in cols]
     g = gt_joints[:, cols]  # (F, Js, 3)
     diff = joint_positions[:, :, None] - g[:, None]  # (F, P, Js, 3)
@@ -143,8 +146,10 @@ def classify_misses(joint_positions: np.ndarray, gt_joints: np.ndarray,
             cause = "shared"
         elif lateral[:, c].min() < threshold:
             cause = "depth"
-        else:
+        elif cost[k, c] < 2.0 * threshold:
             cause = "placement"
+        else:
+            cause = "absent"
         out.append((int(j), cause, k, float(cost[k, c])))
     return out
 

@@ -14,24 +14,25 @@ from bench_misses import CAUSES, bone_visibility, classify_misses  # noqa: E402
 
 
 def _scene() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Seven true joints 2 m in front of the camera, five output joints, threshold 10 cm."""
+    """Eight true joints 2 m in front of the camera, five output joints, threshold 10 cm."""
     g = np.array([[0.0, 0.0, 2.0],     # 0: an output joint 1 cm off -> matched
                   [0.3, 0.0, 2.0],     # 1 and 2: 2 cm apart, one output joint between them
                   [0.32, 0.0, 2.0],    #    -> one matched, the other shared
                   [-0.3, 0.0, 2.0],    # 3: output joint 20 cm further along the ray -> depth
-                  [0.0, 0.3, 2.0],     # 4: output joint 20 cm across -> placement
+                  [0.0, 0.3, 2.0],     # 4: output joint 15 cm across -> placement
                   [0.0, -0.3, 2.0],    # 5: as 4 but its bone barely seen -> hidden
-                  [0.0, 0.6, 2.0]])    # 6: not scorable, nothing near -> never reported
+                  [0.0, 0.6, 2.0],     # 6: not scorable, nothing near -> never reported
+                  [0.0, 0.9, 2.0]])    # 7: scorable, nearest output joint 60 cm off -> absent
     u3 = g[3] / np.linalg.norm(g[3])
     p = np.array([g[0] + [0.01, 0.0, 0.0],
                   [0.31, 0.0, 2.0],
                   g[3] + 0.2 * u3,
-                  g[4] + [0.2, 0.0, 0.0],
-                  g[5] + [-0.2, 0.0, 0.0]])
+                  g[4] + [0.15, 0.0, 0.0],
+                  g[5] + [-0.15, 0.0, 0.0]])
     F = 3
     drift = np.linspace(0.0, 0.05, F)[:, None, None] * np.array([1.0, 0.0, 0.0])
-    scorable = np.array([True] * 6 + [False])
-    vis = np.array([0.8, 0.8, 0.8, 0.8, 0.8, 0.05, 0.8])
+    scorable = np.array([True] * 6 + [False, True])
+    vis = np.array([0.8, 0.8, 0.8, 0.8, 0.8, 0.05, 0.8, 0.8])
     return p[None] + drift, g[None] + drift, scorable, vis
 
 
@@ -39,20 +40,22 @@ def test_each_cause_is_found_where_it_was_built() -> None:
     P, G, scorable, vis = _scene()
     misses = classify_misses(P, G, scorable, 0.10, vis)
     by_joint = {j: (cause, k, dist) for j, cause, k, dist in misses}
-    assert set(by_joint) - {1, 2} == {3, 4, 5}
+    assert set(by_joint) - {1, 2} == {3, 4, 5, 7}
     shared = [j for j in (1, 2) if j in by_joint]
     assert len(shared) == 1 and by_joint[shared[0]][:2] == ("shared", 1)
     assert abs(by_joint[shared[0]][2] - 0.01) < 1e-9
     assert by_joint[3][:2] == ("depth", 2) and abs(by_joint[3][2] - 0.2) < 1e-9
-    assert by_joint[4][:2] == ("placement", 3) and abs(by_joint[4][2] - 0.2) < 1e-9
+    assert by_joint[4][:2] == ("placement", 3) and abs(by_joint[4][2] - 0.15) < 1e-9
     assert by_joint[5][:2] == ("hidden", 4)
+    assert by_joint[7][:2] == ("absent", 3) and abs(by_joint[7][2] - np.hypot(0.15, 0.6)) < 1e-9
     assert all(c in CAUSES for c, _, _ in by_joint.values())
 
 
 def test_a_seen_joint_gets_its_cause_and_a_higher_bar_hides_more() -> None:
     """Joint 5 seen (0.8) is a placement miss like joint 4; with the bar above 0.8 every miss
-    is hidden; a 25 cm threshold matches the depth, placement and hidden joints, and one of
-    the two joints 2 cm apart is still short of an output joint."""
+    is hidden; a 25 cm threshold matches the depth, placement and hidden joints, one of the
+    two joints 2 cm apart is still short of an output joint, and joint 7 (63 cm off) stays
+    missed."""
     P, G, scorable, vis = _scene()
     vis_seen = vis.copy()
     vis_seen[5] = 0.8
@@ -61,15 +64,15 @@ def test_a_seen_joint_gets_its_cause_and_a_higher_bar_hides_more() -> None:
     causes = {j: c for j, c, _, _ in classify_misses(P, G, scorable, 0.10, vis, hidden=0.9)}
     assert set(causes.values()) == {"hidden"}
     wide = {j for j, _, _, _ in classify_misses(P, G, scorable, 0.25, vis)}
-    assert len(wide) == 1 and wide <= {1, 2}
+    assert wide - {7} == wide & {1, 2} and len(wide & {1, 2}) == 1 and 7 in wide
 
 
 def test_no_output_joints_reads_every_scorable_joint_as_missed() -> None:
     _, G, scorable, vis = _scene()
     misses = classify_misses(np.zeros((G.shape[0], 0, 3)), G, scorable, 0.10, vis)
     assert [(j, c) for j, c, _, _ in misses] == [
-        (0, "placement"), (1, "placement"), (2, "placement"), (3, "placement"),
-        (4, "placement"), (5, "hidden")]
+        (0, "absent"), (1, "absent"), (2, "absent"), (3, "absent"), (4, "absent"),
+        (5, "hidden"), (7, "absent")]
 
 
 def test_bone_visibility_counts_own_points_within_the_tolerance() -> None:
