@@ -395,6 +395,12 @@ class StructureConfig:
     leaf_split_min_length: float = 0.03
     leaf_split_min_points: int = 12
     leaf_split_max_ratio: float = 0.5
+    # output skeleton after step 3: a non-root bone with two or more children whose rest
+    # points fall in separate pieces (no two points of different pieces closer than
+    # split_disconnected x the median rest spacing), each piece carrying children, becomes one
+    # bone per piece with the bone's motion (pointrig.structure.split_disconnected_bones,
+    # docs/structure.md "Session 64"; 2-3 give the same gains, 4 loses one); 0 = off
+    split_disconnected: float = 3.0
 
     # --- single-view depth correction (our deviation, docs/structure.md) ---
     # one depth view sees only the near side of each part, so boundary centroids c~ lie in
@@ -430,6 +436,11 @@ class StructureConfig:
                 and 0.0 <= self.centre_tolerance < 1.0):
             raise ConfigError("[structure] centre_tolerance must be a number in [0, 1), "
                               f"got {self.centre_tolerance!r}")
+        if not (isinstance(self.split_disconnected, (int, float))
+                and not isinstance(self.split_disconnected, bool)
+                and 0.0 <= self.split_disconnected < 100.0):
+            raise ConfigError("[structure] split_disconnected must be a number of rest "
+                              f"spacings in [0, 100) (0 = off), got {self.split_disconnected!r}")
 
 
 @dataclass(frozen=True)

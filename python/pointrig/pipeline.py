@@ -97,8 +97,10 @@ def build_skeleton(rest_points: np.ndarray, bone_parent: np.ndarray, joints_rest
 
 
 def _split_weights(weights: np.ndarray, labels: np.ndarray, source: np.ndarray) -> np.ndarray:
-    """``(M, B')`` skinning weights after :func:`pointrig.structure.split_bent_leaves`: each new
-    bone ``b >= B`` takes its source bone's weight of the points now labelled ``b``."""
+    """``(M, B')`` skinning weights after :func:`pointrig.structure.split_bent_leaves` or
+    :func:`pointrig.structure.split_disconnected_bones`: each new bone ``b >= B`` takes its
+    source bone's weight of the points now labelled ``b`` (the two move alike, so the skinned
+    points do not change)."""
     W = np.asarray(weights, dtype=float)
     B = W.shape[1]
     out = np.zeros((W.shape[0], len(source)))
@@ -166,8 +168,10 @@ def output_skeleton(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np
     The one place of the output stage, so that a benchmark that reruns step 3 on cached
     inputs scores what the pipeline writes: the output tree (a leaf root moves to the body's
     centre, :func:`pointrig.structure.output_tree`), then, after step 3 (``observed`` given),
-    a joint where a leaf bone bends (:func:`pointrig.structure.split_bent_leaves`, ``[structure]
-    leaf_split_*``; the new bones take their leaf's motion), the joints to their parts' axis
+    one bone per separate piece of a bone that carries two subtrees
+    (:func:`pointrig.structure.split_disconnected_bones`, ``[structure] split_disconnected``)
+    and a joint where a leaf bone bends (:func:`pointrig.structure.split_bent_leaves`,
+    ``[structure] leaf_split_*``; the new bones take their source bone's motion), the joints to their parts' axis
     depth along the camera ray (``[joints] joint_depth``,
     :func:`pointrig.view.view_depth_joints`, docs/joints.md "Session 47") and the bones' rolls
     (``[joints] bone_twist``, :func:`pointrig.kinematics.minimal_twist`), then
@@ -204,12 +208,16 @@ def output_skeleton(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np
     parent, joints_rest = struct_mod.output_tree(rest_points, labels, bone_parent, joints_rest,
                                                  config.structure, view_camera)
     if observed is not None:
-        labels, parent, joints_rest, source = struct_mod.split_bent_leaves(
-            rest_points, labels, parent, joints_rest, observed[1], config.structure)
-        if len(source) > R.shape[1]:
-            R, T = R[:, source], T[:, source]
-            if weights is not None:
-                weights = _split_weights(weights, labels, source)
+        # new bones take their source bone's motion and weights: first the separate pieces
+        # of a bone (session 64), then the bends of the leaves (session 57)
+        for split in (struct_mod.split_disconnected_bones, struct_mod.split_bent_leaves):
+            labels, parent, joints_rest, source = split(rest_points, labels, parent,
+                                                        joints_rest, observed[1],
+                                                        config.structure)
+            if len(source) > R.shape[1]:
+                R, T = R[:, source], T[:, source]
+                if weights is not None:
+                    weights = _split_weights(weights, labels, source)
     if observed is not None and config.joints.joint_depth == "chord" \
             and view_camera is not None:
         t0 = time.perf_counter()

@@ -72,6 +72,7 @@ __all__ = [
     "reroot",
     "leaf_bend",
     "split_bent_leaves",
+    "split_disconnected_bones",
 ]
 
 log = logging.getLogger(__name__)
@@ -1616,6 +1617,113 @@ def split_bent_leaves(rest_points: np.ndarray, labels: np.ndarray, bone_parent: 
         parent.append(b)
         joints.append(bend)
         source.append(b)
+    return (labels, np.array(parent, dtype=np.int64), np.array(joints),
+            np.array(source, dtype=np.int64))
+
+
+def split_disconnected_bones(rest_points: np.ndarray, labels: np.ndarray,
+                             bone_parent: np.ndarray, joints_rest: np.ndarray,
+                             registered: np.ndarray | None, cfg: StructureConfig
+                             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One bone per spatially separate piece of a bone that carries two or more subtrees.
+
+    A rigid part is one connected piece of surface. Where step 2 gives one bone two pieces
+    that do not touch, each carrying its own child bones (both thighs of a figure standing
+    nearly still, whose small motions the clustering could not tell apart), the two are
+    parts that happen to move alike, and a single joint between them and the parent stands
+    for two. Here the bone's rest points are split into the connected components of the graph
+    joining points closer than ``cfg.split_disconnected`` times the median rest spacing; the
+    components holding at least ``max(10, 15 %)`` of the bone's points and the head joint of
+    a child bone (each child goes to the component nearest its joint) each become a bone, the
+    other points join the nearest of them. The new bones take the bone's motion and skinning
+    weights (``source``) and hang from its parent. Each piece's head joint is step 2's joint
+    rule (Eq. 20, :func:`pointrig.kinematics.solve_joint_positions` with ``cfg.eta``) on the
+    Kabsch fits of the piece and of the parent to the registered points, its prior ``c~`` the
+    centroid of the tenth of the piece's points nearest the bone's old head joint (that
+    centroid itself without ``registered``). The root, bones with fewer than two children, and
+    splits past ``cfg.max_joints`` (when > 0) are left whole.
+
+    Parameters
+    ----------
+    rest_points
+        ``(M, 3)`` rest points, metres.
+    labels
+        ``(M,)`` bone of each rest point.
+    bone_parent
+        ``(B,)`` parent bone, ``-1`` for the root.
+    joints_rest
+        ``(B, 3)`` head joints, metres.
+    registered
+        ``(F, M, 3)`` registered points, metres, or ``None``.
+    cfg
+        ``split_disconnected`` (rest spacings; 0 = off), ``eta`` and ``max_joints`` are read.
+
+    Returns
+    -------
+    labels, parent, joints, source
+        ``(M,)``, ``(B',)``, ``(B', 3)`` and ``(B',)`` as :func:`split_bent_leaves` returns
+        them: new bones after the old ones, ``source[b]`` the bone whose motion bone ``b``
+        takes.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    labels = np.asarray(labels, dtype=np.int64).copy()
+    parent = [int(p) for p in bone_parent]
+    joints = [np.asarray(j, dtype=float) for j in joints_rest]
+    B = len(parent)
+    source = list(range(B))
+    if cfg.split_disconnected <= 0:
+        return labels, np.array(parent, dtype=np.int64), np.array(joints), np.array(source)
+    Q = np.asarray(rest_points, dtype=float)
+    spacing = float(np.median(cKDTree(Q).query(Q, 2)[0][:, 1]))
+    for b in range(B):
+        kids = [c for c in range(B) if parent[c] == b]
+        idx = np.flatnonzero(labels == b)
+        if parent[b] < 0 or len(kids) < 2 or len(idx) < 20:
+            continue
+        pairs = cKDTree(Q[idx]).query_pairs(cfg.split_disconnected * spacing,
+                                            output_type="ndarray")
+        graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])),
+                           shape=(len(idx), len(idx)))
+        n_comp, comp = connected_components(graph, directed=False)
+        sizes = np.bincount(comp, minlength=n_comp)
+        big = [c for c in range(n_comp) if sizes[c] >= max(10, 0.15 * len(idx))]
+        if len(big) < 2:
+            continue
+        trees = {c: cKDTree(Q[idx[comp == c]]) for c in big}
+        owner = {k: min(big, key=lambda c: trees[c].query(joints[k])[0]) for k in kids}
+        pieces = sorted(set(owner.values()))
+        if len(pieces) < 2 or 0 < cfg.max_joints < len(parent) + len(pieces) - 1:
+            continue  # a user's cap on the joints (max_joints) holds
+        near = np.argmin(np.stack([trees[c].query(Q[idx])[0] for c in pieces], axis=1), axis=1)
+        head = joints[b].copy()
+        new = {0: b}
+        for p in range(1, len(pieces)):
+            new[p] = len(parent)
+            parent.append(parent[b])
+            joints.append(head)
+            source.append(b)
+        labels[idx] = [new[int(w)] for w in near]
+        for k in kids:
+            parent[k] = new[pieces.index(owner[k])]
+        for p, nb in new.items():
+            X = Q[idx[near == p]]
+            d = np.linalg.norm(X - head, axis=1)
+            joints[nb] = X[d <= np.quantile(d, 0.1)].mean(axis=0)
+            if registered is not None:
+                # Eq. 20 for the edge parent -> piece on their own Kabsch fits
+                two = np.where(labels == parent[b], 0, -1)
+                two[labels == nb] = 1
+                keep = two >= 0
+                Rf, Tf, _ = fit_bones(Q[keep], np.ascontiguousarray(registered[:, keep]),
+                                      two[keep], 2)
+                c = solve_joint_positions(Rf, Tf, np.array([-1, 0]),
+                                          np.stack([joints[nb], joints[nb]]), cfg.eta)
+                joints[nb] = c[1]
+        log.info("bone %d split into %d separate pieces (%s points)", b, len(pieces),
+                 [int(np.sum(near == p)) for p in range(len(pieces))])
     return (labels, np.array(parent, dtype=np.int64), np.array(joints),
             np.array(source, dtype=np.int64))
 
