@@ -171,8 +171,8 @@ def output_skeleton(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np
     one bone per separate piece of a bone that carries two subtrees
     (:func:`pointrig.structure.split_disconnected_bones`, ``[structure] split_disconnected``)
     and a joint where a leaf bone bends (:func:`pointrig.structure.split_bent_leaves`,
-    ``[structure] leaf_split_*``; the new bones take their source bone's motion), the joints to their parts' axis
-    depth along the camera ray (``[joints] joint_depth``,
+    ``[structure] leaf_split_*``; the new bones take their source bone's motion), the joints
+    to their parts' axis depth along the camera ray (``[joints] joint_depth``,
     :func:`pointrig.view.view_depth_joints`, docs/joints.md "Session 47") and the bones' rolls
     (``[joints] bone_twist``, :func:`pointrig.kinematics.minimal_twist`), then
     :func:`build_skeleton`.
