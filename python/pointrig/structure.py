@@ -1535,6 +1535,23 @@ def _rigid_residual(rest: np.ndarray, moved: np.ndarray, pieces: np.ndarray) -> 
     return float(((fit - moved) ** 2).sum())
 
 
+def _split_start(labels: np.ndarray, bone_parent: np.ndarray, joints_rest: np.ndarray
+                 ) -> tuple[np.ndarray, list[int], list[np.ndarray], list[int]]:
+    """Editable copies of a skeleton for the output stage's splits: labels ``(M,)`` int64,
+    parents, head joints ``(3,)`` (metres) and each bone's source bone (itself)."""
+    parent = [int(p) for p in bone_parent]
+    return (np.asarray(labels, dtype=np.int64).copy(), parent,
+            [np.asarray(j, dtype=float) for j in joints_rest], list(range(len(parent))))
+
+
+def _split_result(labels: np.ndarray, parent: list[int], joints: list[np.ndarray],
+                  source: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The split skeleton as arrays: labels ``(M,)``, parents ``(B',)``, joints ``(B', 3)``
+    (metres) and sources ``(B',)``."""
+    return (labels, np.array(parent, dtype=np.int64), np.array(joints),
+            np.array(source, dtype=np.int64))
+
+
 def split_bent_leaves(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np.ndarray,
                       joints_rest: np.ndarray, registered: np.ndarray, cfg: StructureConfig
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -1573,13 +1590,10 @@ def split_bent_leaves(rest_points: np.ndarray, labels: np.ndarray, bone_parent: 
         and ``source[b]`` is the bone whose motion and skinning weights bone ``b`` takes (``b``
         itself for the old bones, the split leaf for a new one).
     """
-    labels = np.asarray(labels, dtype=np.int64).copy()
-    parent = [int(p) for p in bone_parent]
-    joints = [np.asarray(j, dtype=float) for j in joints_rest]
+    labels, parent, joints, source = _split_start(labels, bone_parent, joints_rest)
     B = len(parent)
-    source = list(range(B))
     if cfg.leaf_split_angle_deg <= 0:
-        return labels, np.array(parent, dtype=np.int64), np.array(joints), np.array(source)
+        return _split_result(labels, parent, joints, source)
     Q = np.asarray(rest_points, dtype=float)
     Y = np.asarray(registered, dtype=float)
     size = float(np.linalg.norm(np.ptp(Q, axis=0)))
@@ -1617,8 +1631,7 @@ def split_bent_leaves(rest_points: np.ndarray, labels: np.ndarray, bone_parent: 
         parent.append(b)
         joints.append(bend)
         source.append(b)
-    return (labels, np.array(parent, dtype=np.int64), np.array(joints),
-            np.array(source, dtype=np.int64))
+    return _split_result(labels, parent, joints, source)
 
 
 def split_disconnected_bones(rest_points: np.ndarray, labels: np.ndarray,
@@ -1669,13 +1682,10 @@ def split_disconnected_bones(rest_points: np.ndarray, labels: np.ndarray,
     from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
 
-    labels = np.asarray(labels, dtype=np.int64).copy()
-    parent = [int(p) for p in bone_parent]
-    joints = [np.asarray(j, dtype=float) for j in joints_rest]
+    labels, parent, joints, source = _split_start(labels, bone_parent, joints_rest)
     B = len(parent)
-    source = list(range(B))
     if cfg.split_disconnected <= 0:
-        return labels, np.array(parent, dtype=np.int64), np.array(joints), np.array(source)
+        return _split_result(labels, parent, joints, source)
     Q = np.asarray(rest_points, dtype=float)
     spacing = float(np.median(cKDTree(Q).query(Q, 2)[0][:, 1]))
     for b in range(B):
@@ -1698,34 +1708,36 @@ def split_disconnected_bones(rest_points: np.ndarray, labels: np.ndarray,
         if len(pieces) < 2 or 0 < cfg.max_joints < len(parent) + len(pieces) - 1:
             continue  # a user's cap on the joints (max_joints) holds
         near = np.argmin(np.stack([trees[c].query(Q[idx])[0] for c in pieces], axis=1), axis=1)
-        head = joints[b].copy()
-        new = {0: b}
-        for p in range(1, len(pieces)):
-            new[p] = len(parent)
-            parent.append(parent[b])
-            joints.append(head)
-            source.append(b)
-        labels[idx] = [new[int(w)] for w in near]
-        for k in kids:
-            parent[k] = new[pieces.index(owner[k])]
-        for p, nb in new.items():
+        # each piece's c~: the centroid of the tenth of its points nearest the old head joint
+        head = joints[b]
+        heads = []
+        for p in range(len(pieces)):
             X = Q[idx[near == p]]
             d = np.linalg.norm(X - head, axis=1)
-            joints[nb] = X[d <= np.quantile(d, 0.1)].mean(axis=0)
-            if registered is not None:
-                # Eq. 20 for the edge parent -> piece on their own Kabsch fits
-                two = np.where(labels == parent[b], 0, -1)
-                two[labels == nb] = 1
-                keep = two >= 0
-                Rf, Tf, _ = fit_bones(Q[keep], np.ascontiguousarray(registered[:, keep]),
-                                      two[keep], 2)
-                c = solve_joint_positions(Rf, Tf, np.array([-1, 0]),
-                                          np.stack([joints[nb], joints[nb]]), cfg.eta)
-                joints[nb] = c[1]
+            heads.append(X[d <= np.quantile(d, 0.1)].mean(axis=0))
+        if registered is not None:
+            # Eq. 20 for every edge parent -> piece, on the Kabsch fits of the parent (local
+            # bone 0) and of the pieces (1, 2, ...)
+            local = np.full(len(Q), -1, dtype=np.int64)
+            local[labels == parent[b]] = 0
+            local[idx] = near + 1
+            keep = local >= 0
+            Rf, Tf, _ = fit_bones(Q[keep], np.ascontiguousarray(registered[:, keep]),
+                                  local[keep], len(pieces) + 1)
+            heads = list(solve_joint_positions(Rf, Tf, np.array([-1] + [0] * len(pieces)),
+                                               np.vstack([head, heads]), cfg.eta)[1:])
+        new = [b] + list(range(len(parent), len(parent) + len(pieces) - 1))
+        joints[b] = heads[0]
+        for h in heads[1:]:
+            parent.append(parent[b])
+            joints.append(h)
+            source.append(b)
+        labels[idx] = np.asarray(new)[near]
+        for k in kids:
+            parent[k] = new[pieces.index(owner[k])]
         log.info("bone %d split into %d separate pieces (%s points)", b, len(pieces),
                  [int(np.sum(near == p)) for p in range(len(pieces))])
-    return (labels, np.array(parent, dtype=np.int64), np.array(joints),
-            np.array(source, dtype=np.int64))
+    return _split_result(labels, parent, joints, source)
 
 
 def leaf_root(bone_parent: np.ndarray) -> bool:
