@@ -10,8 +10,9 @@ every *missed* scorable joint into one cause, checked in this order:
   the data, so no placement rule can be asked to find it.
 * **shared**: the output joint nearest to it is within the threshold but matched to another
   true joint: the skeleton is short of a joint there (two true joints, one output joint).
-* **depth**: the nearest output joint with the offsets along the camera ray left out (as
-  ``bench_step3.lateral_recall`` measures) is within the threshold: depth alone loses it.
+* **depth**: the nearest output joint with the offsets along the camera ray left out
+  (``bench_step3.lateral_costs``, as ``lateral_recall`` measures) is within the threshold:
+  depth alone loses it.
 * **placement**: none of these, and the nearest output joint is within twice the threshold:
   there is a joint, off across the ray as well.
 * **absent**: the nearest output joint is twice the threshold away or more: the skeleton has
@@ -42,7 +43,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_refine import add_cache_options, chosen, suite  # noqa: E402
 from bench_registration_downstream import score_joints  # noqa: E402
-from bench_step3 import cached_inputs, human_sized, step3_skeleton  # noqa: E402
+from bench_step3 import cached_inputs, human_sized, lateral_costs, step3_skeleton  # noqa: E402
 
 from pointrig.config import JointsConfig, StructureConfig  # noqa: E402
 from pointrig.evaluate import match_pairs  # noqa: E402
@@ -127,11 +128,8 @@ def classify_misses(joint_positions: np.ndarray, gt_joints: np.ndarray,
         return [(int(j), "hidden" if visibility[j] < hidden else "absent", -1,
                  float("inf")) for j in cols]
     g = gt_joints[:, cols]  # (F, Js, 3)
-    diff = joint_positions[:, :, None] - g[:, None]  # (F, P, Js, 3)
-    cost = np.linalg.norm(diff, axis=3).mean(axis=0)  # (P, Js)
-    u = g / np.linalg.norm(g, axis=2, keepdims=True)
-    along = np.einsum("fpjk,fjk->fpj", diff, u)
-    lateral = np.linalg.norm(diff - along[..., None] * u[:, None], axis=3).mean(axis=0)
+    cost = np.linalg.norm(joint_positions[:, :, None] - g[:, None], axis=3).mean(axis=0)
+    lateral = lateral_costs(joint_positions, g)  # (P, Js)
     pairs = match_pairs(cost, threshold)
     owner = {p: c for p, c in pairs}
     matched = {c for _, c in pairs}

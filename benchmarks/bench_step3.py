@@ -156,12 +156,19 @@ def lateral_recall(joint_positions: np.ndarray, syn: Any, report: Any) -> float:
     cols = np.flatnonzero(report.scorable)
     if not len(cols):
         return float("nan")
-    g = syn.gt_joints[:, cols]  # (F, Js, 3)
-    u = g / np.linalg.norm(g, axis=2, keepdims=True)
-    diff = joint_positions[:, :, None] - g[:, None]  # (F, P, Js, 3)
-    along = np.einsum("fpjk,fjk->fpj", diff, u)
-    cost = np.linalg.norm(diff - along[..., None] * u[:, None], axis=3).mean(axis=0)
+    cost = lateral_costs(joint_positions, syn.gt_joints[:, cols])
     return len(match_pairs(cost, report.threshold)) / len(cols)
+
+
+def lateral_costs(joint_positions: np.ndarray, gt_joints: np.ndarray) -> np.ndarray:
+    """``(P, J)`` mean over frames of ``|(p - g) - ((p - g) . u) u|`` (metres) for every pair
+    of output joint ``p`` (``joint_positions`` ``(F, P, 3)``) and true joint ``g``
+    (``gt_joints`` ``(F, J, 3)``), ``u`` the unit ray from the camera (the origin) to ``g``:
+    the distance with the offset along the ray left out."""
+    u = gt_joints / np.linalg.norm(gt_joints, axis=2, keepdims=True)
+    diff = joint_positions[:, :, None] - gt_joints[:, None]  # (F, P, J, 3)
+    along = np.einsum("fpjk,fjk->fpj", diff, u)
+    return np.linalg.norm(diff - along[..., None] * u[:, None], axis=3).mean(axis=0)
 
 
 def error_over_time(joint_positions: np.ndarray, syn: Any, report: Any, bins: int = 10
