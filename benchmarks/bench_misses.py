@@ -24,7 +24,8 @@ On ``bench_step3.py``'s cache (step 3 rerun with the defaults on the cached inpu
     PYTHONPATH=python python benchmarks/bench_misses.py --cache /tmp/step3 --set all
 
 prints each sequence's recall, its misses (true joint, cause, nearest output joint's distance
-against the threshold, the bone's visibility) and, per set of sequences (all, human-sized),
+against the threshold and its offset split along the camera ray and across it
+(:func:`ray_offsets`), the bone's visibility) and, per set of sequences (all, human-sized),
 the recall gap split by cause and the recall over the joints that are not hidden.
 """
 
@@ -152,6 +153,30 @@ def classify_misses(joint_positions: np.ndarray, gt_joints: np.ndarray,
     return out
 
 
+def ray_offsets(joint_positions: np.ndarray, gt_joint: np.ndarray) -> tuple[float, float]:
+    """How an output joint is off a true joint, split along the camera ray and across it.
+
+    Parameters
+    ----------
+    joint_positions
+        ``(F, 3)`` one output joint over the frames, metres, camera at the origin.
+    gt_joint
+        ``(F, 3)`` the true joint, metres.
+
+    Returns
+    -------
+    (float, float)
+        The mean over frames of ``(p - g) . u`` (metres; negative = nearer the camera than the
+        truth), ``u`` the unit ray from the camera to ``g``, and the mean of
+        ``|(p - g) - ((p - g) . u) u|`` (metres, the offset across the ray).
+    """
+    u = gt_joint / np.linalg.norm(gt_joint, axis=1, keepdims=True)
+    diff = joint_positions - gt_joint
+    along = np.einsum("fi,fi->f", diff, u)
+    across = np.linalg.norm(diff - along[:, None] * u, axis=1)
+    return float(along.mean()), float(across.mean())
+
+
 def _gap_line(label: str, rows: list[tuple[float, float, dict[str, float]]]) -> str:
     """One summary line: mean recall, the mean gap share of each cause, and the recall over
     the joints that are not hidden."""
@@ -195,8 +220,12 @@ def main(argv: list[str]) -> int:
         rows.append(row)
         if human_sized(r.subject_size):
             human.append(row)
-        cells = [f"{syn.joint_names[j]} {cause} (j{k} {100 * dist:.1f} cm, seen {vis[j]:.2f})"
-                 for j, cause, k, dist in misses]
+        cells = []
+        for j, cause, k, dist in misses:
+            along, across = (ray_offsets(sk.joint_positions[:, k], syn.gt_joints[:, j])
+                             if k >= 0 else (float("nan"), float("nan")))
+            cells.append(f"{syn.joint_names[j]} {cause} (j{k} {100 * dist:.1f} cm: along ray "
+                         f"{100 * along:+.1f}, across {100 * across:.1f}; seen {vis[j]:.2f})")
         print(f"{name:<24} recall {r.recall:.2f} thr {100 * r.threshold:4.1f} cm: "
               + ("; ".join(cells) if cells else "no miss"), flush=True)
     if rows:
