@@ -171,10 +171,9 @@ def ray_offsets(joint_positions: np.ndarray, gt_joint: np.ndarray) -> tuple[floa
         ``|(p - g) - ((p - g) . u) u|`` (metres, the offset across the ray).
     """
     u = gt_joint / np.linalg.norm(gt_joint, axis=1, keepdims=True)
-    diff = joint_positions - gt_joint
-    along = np.einsum("fi,fi->f", diff, u)
-    across = np.linalg.norm(diff - along[:, None] * u, axis=1)
-    return float(along.mean()), float(across.mean())
+    along = np.einsum("fi,fi->f", joint_positions - gt_joint, u)
+    across = lateral_costs(joint_positions[:, None], gt_joint[:, None])[0, 0]
+    return float(along.mean()), float(across)
 
 
 def _gap_line(label: str, rows: list[tuple[float, float, dict[str, float]]]) -> str:
