@@ -144,6 +144,32 @@ def surface_normals(
     ``radius`` (metres) of each ``query (n, 3)``, flipped to face ``camera``; zero rows with
     fewer than 3 (or collinear) neighbours."""
 
+def chamfer_misfit(
+    template: npt.NDArray[np.float64], data: npt.NDArray[np.float64], trunc: float,
+) -> float:
+    """Symmetric truncated chamfer misfit (metres) of ``template (M, 3)`` and ``data (N, 3)``
+    (both non-empty): the mean capped nearest distance template -> data plus data ->
+    template, each distance capped at ``trunc`` (metres, > 0); summed in point order."""
+
+def capped_nn_distances(
+    queries: npt.NDArray[np.float64], points_: npt.NDArray[np.float64], cap: float,
+) -> npt.NDArray[np.float64]:
+    """``(n,)`` exact distance from each of ``queries (n, 3)`` to its nearest of
+    ``points_ (N, 3)``, capped at ``cap`` (metres, > 0; ``cap`` everywhere when ``N = 0``)."""
+
+def kth_nn_distances(
+    queries: npt.NDArray[np.float64], points_: npt.NDArray[np.float64], k: int,
+) -> npt.NDArray[np.float64]:
+    """``(n,)`` exact distance (metres) from each of ``queries (n, 3)`` to its ``k``-th
+    nearest of ``points_ (N, 3)`` (``1 <= k <= N``; a query among the points is its own
+    first, as in a k-d tree's ``query(points, k)``)."""
+
+def farthest_point_sampling(
+    points_: npt.NDArray[np.float64], n: int, first: int,
+) -> npt.NDArray[np.int64]:
+    """``(min(n, m),)`` indices of farthest-point samples of ``points_ (m, 3)`` from index
+    ``first``: each next one farthest from those chosen (first index on a tie)."""
+
 class DeformGraph:
     """Embedded deformation graph (Eq. 2) with the M-step solvers of §4.3 and one-frame EM.
 

@@ -7,6 +7,7 @@ pub mod cluster;
 pub mod deform;
 pub mod gmm;
 pub mod lbs;
+pub mod nearest;
 pub mod neighbors;
 pub mod qp;
 

@@ -485,9 +485,77 @@ fn surface_normals<'py>(
     to_array2(py, n, 3)
 }
 
+/// The symmetric truncated chamfer misfit of a posed template and a frame (see `_core.pyi`).
+#[pyfunction]
+fn chamfer_misfit(
+    py: Python<'_>,
+    template: PyReadonlyArray2<'_, f64>,
+    data: PyReadonlyArray2<'_, f64>,
+    trunc: f64,
+) -> PyResult<f64> {
+    let t = points(py, &template, "template")?;
+    let d = points(py, &data, "data")?;
+    py.detach(|| crate::core::nearest::chamfer_misfit(t, d, trunc))
+        .map_err(|e| to_pyerr(py, e))
+}
+
+/// Each query's distance to its nearest point, capped (see `_core.pyi`).
+#[pyfunction]
+fn capped_nn_distances<'py>(
+    py: Python<'py>,
+    queries: PyReadonlyArray2<'py, f64>,
+    points_: PyReadonlyArray2<'py, f64>,
+    cap: f64,
+) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    let q = points(py, &queries, "queries")?;
+    let p = points(py, &points_, "points")?;
+    let d = py
+        .detach(|| crate::core::nearest::capped_nn_distances(q, p, cap))
+        .map_err(|e| to_pyerr(py, e))?;
+    Ok(PyArray1::from_vec(py, d))
+}
+
+/// Each query's distance to its `k`-th nearest point (see `_core.pyi`).
+#[pyfunction]
+fn kth_nn_distances<'py>(
+    py: Python<'py>,
+    queries: PyReadonlyArray2<'py, f64>,
+    points_: PyReadonlyArray2<'py, f64>,
+    k: usize,
+) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    let q = points(py, &queries, "queries")?;
+    let p = points(py, &points_, "points")?;
+    let d = py
+        .detach(|| crate::core::nearest::kth_nn_distances(q, p, k))
+        .map_err(|e| to_pyerr(py, e))?;
+    Ok(PyArray1::from_vec(py, d))
+}
+
+/// Farthest-point sampling indices (see `_core.pyi`).
+#[pyfunction]
+fn farthest_point_sampling<'py>(
+    py: Python<'py>,
+    points_: PyReadonlyArray2<'py, f64>,
+    n: usize,
+    first: usize,
+) -> PyResult<Bound<'py, PyArray1<i64>>> {
+    let p = points(py, &points_, "points")?;
+    let idx = py
+        .detach(|| crate::core::nearest::farthest_point_sampling(p, n, first))
+        .map_err(|e| to_pyerr(py, e))?;
+    Ok(PyArray1::from_vec(
+        py,
+        idx.into_iter().map(|i| i as i64).collect(),
+    ))
+}
+
 pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(gmm_estep, m)?)?;
     m.add_function(wrap_pyfunction!(surface_normals, m)?)?;
+    m.add_function(wrap_pyfunction!(chamfer_misfit, m)?)?;
+    m.add_function(wrap_pyfunction!(capped_nn_distances, m)?)?;
+    m.add_function(wrap_pyfunction!(farthest_point_sampling, m)?)?;
+    m.add_function(wrap_pyfunction!(kth_nn_distances, m)?)?;
     m.add_class::<DeformGraph>()?;
     Ok(())
 }

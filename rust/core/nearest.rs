@@ -1,0 +1,582 @@
+//! Exact nearest-neighbour distances, capped, on a uniform grid, and the symmetric truncated
+//! chamfer misfit built on them (step 1's prediction check and rest-frame choice, step 3's
+//! choice between a frame's tracked hypotheses).
+//!
+//! The points are bucketed into cubic cells of side `h` (a counting sort). A query searches
+//! the cells ring by ring in Chebyshev index distance from its own cell: every point in a
+//! cell of ring `r + 1` or beyond lies at least `r h` from the query, so the search stops
+//! after ring `r` once the best distance found is at most `r h`, or once `r h` reaches the
+//! cap (farther points do not matter), or once the rings have covered the whole grid. The
+//! result is the exact distance to the nearest point, capped, the same as a k-d tree's.
+
+use rayon::prelude::*;
+
+use crate::core::error::{CoreError, CoreResult};
+
+/// Rows of cells (one per `(iy, iz)`) per point at most: the cell side grows when the box
+/// would need more (outliers far from the subject), so that the row table stays linear in
+/// the points. Cells along x cost nothing: each row holds only its points, sorted by cell.
+const ROWS_PER_POINT: usize = 16;
+
+/// Queries per rayon task.
+const CHUNK: usize = 512;
+
+/// Points bucketed by cell, sparse along x: row `r = iz * ny + iy` holds its points in
+/// `sorted[row_start[r]..row_start[r + 1]]` (flat `(n, 3)`, ordered by their x cell
+/// `xcell`), so the cells `x0..=x1` of a row are one contiguous slice found by two binary
+/// searches in a short row.
+struct NnGrid {
+    origin: [f64; 3],
+    h: f64,
+    dims: [i64; 3],
+    row_start: Vec<u32>,
+    xcell: Vec<i64>,
+    sorted: Vec<f64>,
+}
+
+/// The largest 1-99 % extent over the three axes of flat `(n, 3)` points (`n >= 1`), read
+/// on at most 2048 of them (every `n / 2048`-th): a scale for the cell side that a few
+/// outliers do not set.
+fn robust_extent(points: &[f64]) -> f64 {
+    let n = points.len() / 3;
+    let step = n.div_ceil(2048).max(1);
+    let mut ext = 0.0f64;
+    for a in 0..3 {
+        let mut v: Vec<f64> = points.chunks_exact(3).step_by(step).map(|p| p[a]).collect();
+        let k_lo = ((v.len() - 1) as f64 * 0.01).round() as usize;
+        let k_hi = ((v.len() - 1) as f64 * 0.99).round() as usize;
+        let lo = *v.select_nth_unstable_by(k_lo, |x, y| x.total_cmp(y)).1;
+        let hi = *v.select_nth_unstable_by(k_hi, |x, y| x.total_cmp(y)).1;
+        ext = ext.max(hi - lo);
+    }
+    ext
+}
+
+impl NnGrid {
+    /// Bucket `points` (flat `(n, 3)`, finite, `n >= 1`) over their bounding box. The cell
+    /// side is `scale L / sqrt(n)` with `L = ext` the points' [`robust_extent`], about one spacing of `n` points spread over a surface of
+    /// size `L`; it grows when the box would need more than `ROWS_PER_POINT` rows per point.
+    fn new(points: &[f64], ext: f64, scale: f64) -> NnGrid {
+        let n = points.len() / 3;
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for p in points.chunks_exact(3) {
+            for a in 0..3 {
+                lo[a] = lo[a].min(p[a]);
+                hi[a] = hi[a].max(p[a]);
+            }
+        }
+        let mut h = scale * ext / (n as f64).sqrt();
+        if !(h.is_finite() && h > 0.0) {
+            h = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
+            if !(h.is_finite() && h > 0.0) {
+                h = 1.0;
+            }
+        }
+        let dims_for = |h: f64| -> [i64; 3] {
+            let mut d = [1i64; 3];
+            for a in 0..3 {
+                // bounded so that far outliers cannot overflow the cell arithmetic
+                d[a] = ((hi[a] - lo[a]) / h).floor().min(1e9) as i64 + 1;
+            }
+            d
+        };
+        let max_rows = (ROWS_PER_POINT * n).max(1024);
+        let mut dims = dims_for(h);
+        while (dims[1] as usize).saturating_mul(dims[2] as usize) > max_rows {
+            h *= 1.25;
+            dims = dims_for(h);
+        }
+        let nrows = (dims[1] * dims[2]) as usize;
+        let cell = |p: &[f64], a: usize| -> i64 {
+            let v = ((p[a] - lo[a]) / h).floor();
+            (v.max(0.0) as i64).min(dims[a] - 1)
+        };
+        let keys: Vec<(usize, i64)> = points
+            .chunks_exact(3)
+            .map(|p| ((cell(p, 2) * dims[1] + cell(p, 1)) as usize, cell(p, 0)))
+            .collect();
+        let mut row_start = vec![0u32; nrows + 1];
+        for &(r, _) in &keys {
+            row_start[r + 1] += 1;
+        }
+        for r in 0..nrows {
+            row_start[r + 1] += row_start[r];
+        }
+        // counting sort by row, then each row by x cell (stable: ties keep input order)
+        let mut fill = row_start.clone();
+        let mut order = vec![0u32; n];
+        for (i, &(r, _)) in keys.iter().enumerate() {
+            order[fill[r] as usize] = i as u32;
+            fill[r] += 1;
+        }
+        for r in 0..nrows {
+            let (s, e) = (row_start[r] as usize, row_start[r + 1] as usize);
+            if e - s > 1 {
+                order[s..e].sort_by_key(|&i| keys[i as usize].1);
+            }
+        }
+        let mut sorted = vec![0.0f64; 3 * n];
+        let mut xcell = vec![0i64; n];
+        for (k, &i) in order.iter().enumerate() {
+            let i = i as usize;
+            sorted[3 * k..3 * k + 3].copy_from_slice(&points[3 * i..3 * i + 3]);
+            xcell[k] = keys[i].1;
+        }
+        NnGrid {
+            origin: lo,
+            h,
+            dims,
+            row_start,
+            xcell,
+            sorted,
+        }
+    }
+
+    /// Visit the points ring by ring in Chebyshev cell distance from `q`'s cell: `visit`
+    /// sees every point (a `[x, y, z]` slice) of ring `r`, then `done(state, reach2)` is asked
+    /// with `reach2 = (r h)^2`, the squared distance below which rings beyond hold no point.
+    /// Returns `true` when `done` said so or the rings covered the whole grid, `false` after
+    /// ring `max_ring` otherwise. The query's cell index is not clamped to the box (a query
+    /// outside it starts from a virtual cell), so the ring bound holds for every query.
+    fn walk_rings<S: ?Sized>(
+        &self,
+        q: [f64; 3],
+        max_ring: i64,
+        state: &mut S,
+        visit: impl Fn(&mut S, &[f64]),
+        done: impl Fn(&S, f64) -> bool,
+    ) -> bool {
+        let mut c = [0i64; 3];
+        for a in 0..3 {
+            // finite queries; the clamp keeps far ones from overflowing
+            let v = ((q[a] - self.origin[a]) / self.h).floor().clamp(-1e9, 1e9);
+            c[a] = v as i64;
+        }
+        let [nx, ny, nz] = self.dims;
+        // the points of row (z, y) in x cells x0..=x1
+        let scan = |z: i64, y: i64, x0: i64, x1: i64, state: &mut S| {
+            let r = (z * ny + y) as usize;
+            let (s, e) = (self.row_start[r] as usize, self.row_start[r + 1] as usize);
+            if s == e {
+                return;
+            }
+            let xs = &self.xcell[s..e];
+            let a = s + xs.partition_point(|&x| x < x0);
+            let b = s + xs.partition_point(|&x| x <= x1);
+            for p in self.sorted[3 * a..3 * b].chunks_exact(3) {
+                visit(state, p);
+            }
+        };
+        let mut r: i64 = 0;
+        loop {
+            let z0 = (c[2] - r).max(0);
+            let z1 = (c[2] + r).min(nz - 1);
+            let y0 = (c[1] - r).max(0);
+            let y1 = (c[1] + r).min(ny - 1);
+            let x0 = (c[0] - r).max(0);
+            let x1 = (c[0] + r).min(nx - 1);
+            if z0 <= z1 && y0 <= y1 && x0 <= x1 {
+                for z in z0..=z1 {
+                    for y in y0..=y1 {
+                        if (z - c[2]).abs() == r || (y - c[1]).abs() == r {
+                            scan(z, y, x0, x1, state);
+                        } else {
+                            for x in [c[0] - r, c[0] + r] {
+                                if (0..nx).contains(&x) {
+                                    scan(z, y, x, x, state);
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+            // cells of ring r + 1 and beyond lie at least r h away
+            let reach = r as f64 * self.h;
+            let covered = c[0] - r <= 0
+                && c[0] + r >= nx - 1
+                && c[1] - r <= 0
+                && c[1] + r >= ny - 1
+                && c[2] - r <= 0
+                && c[2] + r >= nz - 1;
+            if covered || done(state, reach * reach) {
+                return true;
+            }
+            if r >= max_ring {
+                return false;
+            }
+            r += 1;
+        }
+    }
+
+    /// Smallest squared distance from `q` to a point, or `cap2` when none is nearer; `None`
+    /// when the search reaches ring `max_ring` without an answer that rings beyond could not
+    /// beat.
+    fn nearest_sq(&self, q: [f64; 3], cap2: f64, max_ring: i64) -> Option<f64> {
+        let mut best = cap2;
+        let found = self.walk_rings(
+            q,
+            max_ring,
+            &mut best,
+            |best, p| {
+                let d = sq_dist(p, q);
+                if d < *best {
+                    *best = d;
+                }
+            },
+            |best, reach2| *best <= reach2 || reach2 >= cap2,
+        );
+        found.then_some(best)
+    }
+
+    /// The `k` smallest squared distances from `q` (ascending, into `best`, which holds
+    /// `k` slots initialised to infinity), searching rings up to `max_ring`; `false` when
+    /// rings beyond could still hold a nearer point than the `k`-th found.
+    fn k_nearest_sq(&self, q: [f64; 3], best: &mut [f64], max_ring: i64) -> bool {
+        let k = best.len();
+        self.walk_rings(
+            q,
+            max_ring,
+            best,
+            |best, p| {
+                let d = sq_dist(p, q);
+                if d < best[k - 1] {
+                    // insertion into the ascending list
+                    let mut i = k - 1;
+                    while i > 0 && best[i - 1] > d {
+                        best[i] = best[i - 1];
+                        i -= 1;
+                    }
+                    best[i] = d;
+                }
+            },
+            |best, reach2| best[k - 1] <= reach2,
+        )
+    }
+}
+
+/// Squared distance of a point (an `[x, y, z]` slice) and `q`.
+#[inline]
+fn sq_dist(p: &[f64], q: [f64; 3]) -> f64 {
+    (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)
+}
+
+/// A fine grid (about one point spacing per cell) for the queries near the points and a
+/// coarse one (`COARSE` times the side) for the far ones, which the fine grid would search
+/// through many empty rings.
+struct Nearest {
+    fine: NnGrid,
+    coarse: NnGrid,
+}
+
+/// Fine rings searched before a query moves to the coarse grid.
+const FINE_RINGS: i64 = 2;
+/// Cell side of the coarse grid over the fine one.
+const COARSE: f64 = 8.0;
+
+impl Nearest {
+    fn new(points: &[f64]) -> Nearest {
+        let ext = robust_extent(points);
+        Nearest {
+            fine: NnGrid::new(points, ext, 1.0),
+            coarse: NnGrid::new(points, ext, COARSE),
+        }
+    }
+
+    /// Exact smallest squared distance from `q` to a point, capped at `cap2`.
+    fn nearest_sq(&self, q: [f64; 3], cap2: f64) -> f64 {
+        match self.fine.nearest_sq(q, cap2, FINE_RINGS) {
+            Some(d) => d,
+            // the coarse search has no ring limit, so it always answers
+            None => self.coarse.nearest_sq(q, cap2, i64::MAX).unwrap_or(cap2),
+        }
+    }
+}
+
+fn check(name: &str, pts: &[f64]) -> CoreResult<()> {
+    if !pts.len().is_multiple_of(3) {
+        return Err(CoreError::InvalidInput(format!(
+            "{name} must have shape (n, 3)"
+        )));
+    }
+    if let Some(i) = pts.iter().position(|v| !v.is_finite()) {
+        return Err(CoreError::NonFinite(format!(
+            "{name}: row {} is not finite",
+            i / 3
+        )));
+    }
+    Ok(())
+}
+
+/// For each query (flat `(n, 3)`), the distance to its nearest point of `points` (flat
+/// `(N, 3)`), capped at `cap` (metres, positive and finite): `min(d, cap)`. With no points
+/// every distance is `cap`. Each query is independent, so the result does not depend on the
+/// thread count.
+pub fn capped_nn_distances(queries: &[f64], points: &[f64], cap: f64) -> CoreResult<Vec<f64>> {
+    check("queries", queries)?;
+    check("points", points)?;
+    if !(cap.is_finite() && cap > 0.0) {
+        return Err(CoreError::InvalidInput(format!(
+            "distance cap must be positive and finite, got {cap}"
+        )));
+    }
+    let nq = queries.len() / 3;
+    if points.is_empty() {
+        return Ok(vec![cap; nq]);
+    }
+    let grid = Nearest::new(points);
+    let cap2 = cap * cap;
+    let mut out = vec![0.0f64; nq];
+    out.par_chunks_mut(CHUNK)
+        .zip(queries.par_chunks(3 * CHUNK))
+        .for_each(|(o, qs)| {
+            for (d, q) in o.iter_mut().zip(qs.chunks_exact(3)) {
+                *d = grid.nearest_sq([q[0], q[1], q[2]], cap2).sqrt().min(cap);
+            }
+        });
+    Ok(out)
+}
+
+/// Fine rings searched by a `k`-nearest query before it moves to the coarse grid.
+const FINE_RINGS_K: i64 = 5;
+
+/// For each query (flat `(n, 3)`), the distance to its `k`-th nearest point of `points`
+/// (flat `(N, 3)`, `1 <= k <= N`; a query that is itself one of the points counts itself
+/// as its first nearest, as a k-d tree's `query(points, k)` does). Exact; each query is
+/// independent, so the result does not depend on the thread count.
+pub fn kth_nn_distances(queries: &[f64], points: &[f64], k: usize) -> CoreResult<Vec<f64>> {
+    check("queries", queries)?;
+    check("points", points)?;
+    let np = points.len() / 3;
+    if k == 0 || k > np {
+        return Err(CoreError::InvalidInput(format!(
+            "neighbour rank k must be in 1..={np}, got {k}"
+        )));
+    }
+    let grid = Nearest::new(points);
+    let nq = queries.len() / 3;
+    let mut out = vec![0.0f64; nq];
+    out.par_chunks_mut(CHUNK)
+        .zip(queries.par_chunks(3 * CHUNK))
+        .for_each(|(o, qs)| {
+            let mut best = vec![f64::INFINITY; k];
+            for (d, q) in o.iter_mut().zip(qs.chunks_exact(3)) {
+                let q = [q[0], q[1], q[2]];
+                best.fill(f64::INFINITY);
+                if !grid.fine.k_nearest_sq(q, &mut best, FINE_RINGS_K) {
+                    best.fill(f64::INFINITY);
+                    grid.coarse.k_nearest_sq(q, &mut best, i64::MAX);
+                }
+                *d = best[k - 1].sqrt();
+            }
+        });
+    Ok(out)
+}
+
+/// The symmetric truncated chamfer misfit of a posed template (flat `(M, 3)`, `M >= 1`) and
+/// a frame (flat `(N, 3)`, `N >= 1`), metres: the mean over template points of the capped
+/// distance to the nearest frame point plus the mean over frame points of the capped
+/// distance to the nearest template point, each distance capped at `trunc`. The means are
+/// summed in point order, so the value does not depend on the thread count.
+pub fn chamfer_misfit(template: &[f64], data: &[f64], trunc: f64) -> CoreResult<f64> {
+    if template.len() < 3 || data.len() < 3 {
+        return Err(CoreError::InvalidInput(
+            "chamfer misfit needs at least one template and one data point".into(),
+        ));
+    }
+    let d_td = capped_nn_distances(template, data, trunc)?;
+    let d_dt = capped_nn_distances(data, template, trunc)?;
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    Ok(mean(&d_td) + mean(&d_dt))
+}
+
+/// Farthest-point sampling: indices of `n` of the points (flat `(m, 3)`), starting at
+/// `first`, each next one the point farthest from those chosen (the first such index on a
+/// tie). Squared distances are `(dx^2 + dy^2) + dz^2` in that order, the same arithmetic as
+/// numpy's `np.sum((p - q) ** 2, axis=1)`, so the choice matches the numpy loop it replaces
+/// bit for bit. `n >= m` returns every index in order.
+pub fn farthest_point_sampling(points: &[f64], n: usize, first: usize) -> CoreResult<Vec<usize>> {
+    check("points", points)?;
+    let m = points.len() / 3;
+    if n >= m {
+        return Ok((0..m).collect());
+    }
+    if first >= m {
+        return Err(CoreError::InvalidInput(format!(
+            "first index {first} out of range for {m} points"
+        )));
+    }
+    let sq = |i: usize, j: usize| -> f64 {
+        let (a, b) = (&points[3 * i..3 * i + 3], &points[3 * j..3 * j + 3]);
+        let (dx, dy, dz) = (a[0] - b[0], a[1] - b[1], a[2] - b[2]);
+        (dx * dx + dy * dy) + dz * dz
+    };
+    let mut idx = Vec::with_capacity(n);
+    idx.push(first);
+    let mut d: Vec<f64> = (0..m).map(|i| sq(i, first)).collect();
+    for _ in 1..n {
+        let mut best = 0usize;
+        for (i, &v) in d.iter().enumerate() {
+            if v > d[best] {
+                best = i;
+            }
+        }
+        idx.push(best);
+        for (i, v) in d.iter_mut().enumerate() {
+            let e = sq(i, best);
+            if e < *v {
+                *v = e;
+            }
+        }
+    }
+    Ok(idx)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn lcg(seed: &mut u64) -> f64 {
+        *seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        ((*seed >> 11) as f64) / ((1u64 << 53) as f64)
+    }
+
+    fn brute(q: &[f64], p: &[f64], cap: f64) -> Vec<f64> {
+        q.chunks_exact(3)
+            .map(|a| {
+                p.chunks_exact(3)
+                    .map(|b| {
+                        ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2))
+                            .sqrt()
+                    })
+                    .fold(cap, f64::min)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn matches_brute_force_on_a_surface_with_outliers() {
+        let mut s = 7u64;
+        // points on a sphere shell of radius 0.5, plus far outliers
+        let mut p = Vec::new();
+        for _ in 0..1500 {
+            let (u, v) = (lcg(&mut s) * 2.0 - 1.0, lcg(&mut s) * std::f64::consts::TAU);
+            let r = (1.0 - u * u).sqrt();
+            p.extend_from_slice(&[0.5 * r * v.cos(), 0.5 * r * v.sin(), 0.5 * u]);
+        }
+        for _ in 0..20 {
+            p.extend_from_slice(&[
+                lcg(&mut s) * 20.0 - 10.0,
+                lcg(&mut s) * 20.0 - 10.0,
+                lcg(&mut s) * 20.0 - 10.0,
+            ]);
+        }
+        let mut q = Vec::new();
+        for _ in 0..800 {
+            q.extend_from_slice(&[
+                lcg(&mut s) * 3.0 - 1.5,
+                lcg(&mut s) * 3.0 - 1.5,
+                lcg(&mut s) * 3.0 - 1.5,
+            ]);
+        }
+        q.extend_from_slice(&[100.0, -50.0, 3.0]);
+        for cap in [0.01, 0.2, 5.0, 1e3] {
+            let got = capped_nn_distances(&q, &p, cap).unwrap();
+            let want = brute(&q, &p, cap);
+            for (g, w) in got.iter().zip(&want) {
+                assert!((g - w).abs() < 1e-12, "cap {cap}: {g} vs {w}");
+            }
+        }
+    }
+
+    #[test]
+    fn chamfer_of_a_shifted_copy_is_twice_the_shift() {
+        // a grid plane shifted along its normal by 1 cm: every nearest distance is 1 cm
+        let mut a = Vec::new();
+        for i in 0..30 {
+            for j in 0..30 {
+                a.extend_from_slice(&[i as f64 * 0.02, j as f64 * 0.02, 0.0]);
+            }
+        }
+        let b: Vec<f64> = a.chunks_exact(3).flat_map(|p| [p[0], p[1], 0.01]).collect();
+        let m = chamfer_misfit(&a, &b, 0.1).unwrap();
+        assert!((m - 0.02).abs() < 1e-12, "{m}");
+        // capped below the shift, each side contributes the cap
+        let m = chamfer_misfit(&a, &b, 0.004).unwrap();
+        assert!((m - 0.008).abs() < 1e-12, "{m}");
+    }
+
+    #[test]
+    fn farthest_point_sampling_spreads_and_matches_a_naive_loop() {
+        let mut s = 3u64;
+        let p: Vec<f64> = (0..900).map(|_| lcg(&mut s)).collect();
+        let idx = farthest_point_sampling(&p, 40, 5).unwrap();
+        // the naive definition: each next point maximises the distance to the chosen set
+        let d = |i: usize, j: usize| -> f64 {
+            (0..3)
+                .map(|a| (p[3 * i + a] - p[3 * j + a]).powi(2))
+                .sum::<f64>()
+        };
+        assert_eq!(idx[0], 5);
+        for k in 1..idx.len() {
+            let to_set = |i: usize| idx[..k].iter().map(|&j| d(i, j)).fold(f64::MAX, f64::min);
+            let best = (0..300).map(to_set).fold(0.0, f64::max);
+            assert!((to_set(idx[k]) - best).abs() < 1e-12);
+        }
+        assert_eq!(
+            farthest_point_sampling(&p, 500, 0).unwrap(),
+            (0..300).collect::<Vec<_>>()
+        );
+        assert!(farthest_point_sampling(&p, 10, 300).is_err());
+    }
+
+    #[test]
+    fn kth_distances_match_brute_force() {
+        let mut s = 11u64;
+        let mut p = Vec::new();
+        for _ in 0..1200 {
+            let (u, v) = (lcg(&mut s) * 2.0 - 1.0, lcg(&mut s) * std::f64::consts::TAU);
+            let r = (1.0 - u * u).sqrt();
+            p.extend_from_slice(&[0.5 * r * v.cos(), 0.5 * r * v.sin(), 0.5 * u]);
+        }
+        for _ in 0..30 {
+            p.extend_from_slice(&[lcg(&mut s) * 6.0 - 3.0, lcg(&mut s) * 6.0, 0.0]);
+        }
+        for k in [1, 2, 11, 40] {
+            let got = kth_nn_distances(&p, &p, k).unwrap();
+            for (i, g) in got.iter().enumerate() {
+                let mut d: Vec<f64> = p
+                    .chunks_exact(3)
+                    .map(|b| {
+                        ((p[3 * i] - b[0]).powi(2)
+                            + (p[3 * i + 1] - b[1]).powi(2)
+                            + (p[3 * i + 2] - b[2]).powi(2))
+                        .sqrt()
+                    })
+                    .collect();
+                d.sort_by(f64::total_cmp);
+                assert!(
+                    (g - d[k - 1]).abs() < 1e-12,
+                    "k {k} point {i}: {g} vs {}",
+                    d[k - 1]
+                );
+            }
+        }
+        assert!(kth_nn_distances(&p[..6], &p[..6], 3).is_err());
+        assert!(kth_nn_distances(&p[..6], &p[..6], 0).is_err());
+    }
+
+    #[test]
+    fn bad_input_is_an_error_not_a_panic() {
+        assert!(capped_nn_distances(&[0.0, 0.0], &[0.0; 3], 1.0).is_err());
+        assert!(capped_nn_distances(&[0.0; 3], &[f64::NAN, 0.0, 0.0], 1.0).is_err());
+        assert!(capped_nn_distances(&[0.0; 3], &[0.0; 3], 0.0).is_err());
+        assert!(chamfer_misfit(&[], &[0.0; 3], 1.0).is_err());
+        assert_eq!(
+            capped_nn_distances(&[0.0; 6], &[], 0.5).unwrap(),
+            vec![0.5, 0.5]
+        );
+    }
+}
