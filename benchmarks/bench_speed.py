@@ -6,7 +6,7 @@ registered one after the other (``pointrig.registration._REFINE_WORKERS = 1``), 
 forward and backward chains one after the other (``pointrig.registration._CHAIN_WORKERS =
 1``), step 2's ensemble seeds one after the other (``pointrig.structure._ENSEMBLE_WORKERS =
 1``) and the chamfer misfit searching every nearest neighbour to the end (no
-``distance_upper_bound``). Both forms
+``distance_upper_bound``) on scipy k-d trees, as before session 66's Rust grid. Both forms
 do the same arithmetic, so the benchmark also checks that the skeletons agree. Prints per
 sequence the seconds of each stage for both and their ratio::
 
@@ -47,11 +47,11 @@ WORKERS = ((joints_mod, "_TRACK_WORKERS"), (reg_mod, "_REFINE_WORKERS"),
 PATCHED = WORKERS + ((joints_mod, "chamfer_misfit"), (reg_mod, "chamfer_misfit"))
 
 
-def chamfer_full_search(template: np.ndarray, data: np.ndarray, trunc: float,
-                        data_tree: cKDTree | None = None) -> float:
-    """:func:`pointrig.preprocess.chamfer_misfit` as before session 35: every nearest-neighbour
-    search runs to the end and the distances are capped afterwards (metres)."""
-    tree = cKDTree(data) if data_tree is None else data_tree
+def chamfer_full_search(template: np.ndarray, data: np.ndarray, trunc: float) -> float:
+    """:func:`pointrig.preprocess.chamfer_misfit` as before session 35: scipy k-d trees
+    (session 66 moved it to a Rust grid), every nearest-neighbour search run to the end and
+    the distances capped afterwards (metres)."""
+    tree = cKDTree(data)
     d_td = np.minimum(tree.query(template)[0], trunc).mean()
     d_dt = np.minimum(cKDTree(template).query(data)[0], trunc).mean()
     return float(d_td + d_dt)

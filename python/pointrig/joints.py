@@ -458,7 +458,7 @@ def _fit_and_score(fit_frame: Callable[..., tuple[np.ndarray, np.ndarray, np.nda
     ``(B, 3)``), and the fit's truncated chamfer misfit to the frame ``v`` ``(N, 3)`` (metres;
     0 when ``trunc`` is None: a single hypothesis needs no score). Returns ``(misfit, R, T)``."""
     Rt, Tt, X = fit_frame(v, packed, tree, start[0], start[1], vn)
-    return (0.0 if trunc is None else chamfer_misfit(X, v, trunc, tree)), Rt, Tt
+    return (0.0 if trunc is None else chamfer_misfit(X, v, trunc)), Rt, Tt
 
 
 def track_bones(
@@ -616,8 +616,8 @@ def track_bones(
                 Xh = skin(Rh, Th)
                 Xp = _fixed_joint_translations(starts[0][0], starts[0][1][root], joints, parent,
                                                skin)[1]
-                if chamfer_misfit(Xh, v, trunc, tree) < \
-                        config.track_predict_check * chamfer_misfit(Xp, v, trunc, tree):
+                if chamfer_misfit(Xh, v, trunc) < \
+                        config.track_predict_check * chamfer_misfit(Xp, v, trunc):
                     starts[0] = (Rh.copy(), Th.copy())
             packed = pack_frames([v])
             vn = normals[1][t] if use_normals else None

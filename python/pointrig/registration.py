@@ -35,6 +35,7 @@ from .errors import ConfigError, FormatError, InputError
 from .io import write_npz
 from .preprocess import (
     chamfer_misfit,
+    nearest_distances,
     estimate_normals,
     farthest_point_sampling,
     knn_graph,
@@ -349,8 +350,8 @@ def _cpd_sigma2(y: np.ndarray, x: np.ndarray) -> float:
 def _residual_sigma2(y: np.ndarray, x: np.ndarray) -> float:
     """Start sigma^2 from how far the predicted template is from the data: the mean squared
     nearest-neighbour distance in both directions, per dimension (m^2)."""
-    dy = cKDTree(x).query(y)[0]
-    dx = cKDTree(y).query(x)[0]
+    dy = nearest_distances(y, x)
+    dx = nearest_distances(x, y)
     return float((np.mean(dy**2) + np.mean(dx**2)) / 6.0)
 
 
@@ -559,10 +560,9 @@ def _register_from(seq: PointSequence, config: RegistrationConfig, rf: int,
                 and len(x):
             # hold the previous pose instead when it explains the frame better than the
             # prediction: after a jump or a sudden stop the prediction repeats the jump
-            tree = cKDTree(x)
             trunc = _misfit_cap(config)
-            m_hold = chamfer_misfit(points[t - step], x, trunc, tree)
-            m_pred = chamfer_misfit(g.deform(r_init, t_init), x, trunc, tree)
+            m_hold = chamfer_misfit(points[t - step], x, trunc)
+            m_pred = chamfer_misfit(g.deform(r_init, t_init), x, trunc)
             if m_hold < config.predict_check * m_pred:
                 log.debug("frame %d: the previous pose explains it better than the prediction "
                           "(misfit %.4f < %.4f m); holding it", t, m_hold, m_pred)
