@@ -6,8 +6,10 @@ registered one after the other (``pointrig.registration._REFINE_WORKERS = 1``), 
 forward and backward chains one after the other (``pointrig.registration._CHAIN_WORKERS =
 1``), step 2's ensemble seeds one after the other (``pointrig.structure._ENSEMBLE_WORKERS =
 1``) and the chamfer misfit searching every nearest neighbour to the end (no
-``distance_upper_bound``) on scipy k-d trees, as before session 66's Rust grid. Both forms
-do the same arithmetic, so the benchmark also checks that the skeletons agree. Prints per
+``distance_upper_bound``) on scipy k-d trees; and, as before session 66's Rust grid
+(``rust/core/nearest.rs``), farthest-point sampling as a numpy loop, the sparse-point filter
+and step 1's start sigma^2 on scipy k-d trees. Both forms do the same arithmetic, so the
+benchmark also checks that the skeletons agree. Prints per
 sequence the seconds of each stage for both and their ratio::
 
     PYTHONPATH=python python benchmarks/bench_speed.py                  # 100-frame human
@@ -34,6 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_refine import selected, suite  # noqa: E402
 
 import pointrig.joints as joints_mod  # noqa: E402
+import pointrig.preprocess as pre_mod  # noqa: E402
 import pointrig.registration as reg_mod  # noqa: E402
 import pointrig.structure as structure_mod  # noqa: E402
 from pointrig.config import PipelineConfig  # noqa: E402
@@ -43,8 +46,12 @@ STAGES = ("clean-up", "registration", "structure", "joints", "refinement")
 #: the thread counts the serial form sets to 1
 WORKERS = ((joints_mod, "_TRACK_WORKERS"), (reg_mod, "_REFINE_WORKERS"),
            (reg_mod, "_CHAIN_WORKERS"), (structure_mod, "_ENSEMBLE_WORKERS"))
+#: the module functions the serial form replaces by its reference forms (and restores)
+FUNCTIONS = ((joints_mod, "chamfer_misfit"), (reg_mod, "chamfer_misfit"),
+             (pre_mod, "farthest_point_sampling"), (reg_mod, "farthest_point_sampling"),
+             (pre_mod, "remove_sparse_points"), (reg_mod, "nearest_distances"))
 #: everything the serial form changes (and restores)
-PATCHED = WORKERS + ((joints_mod, "chamfer_misfit"), (reg_mod, "chamfer_misfit"))
+PATCHED = WORKERS + FUNCTIONS
 
 
 def chamfer_full_search(template: np.ndarray, data: np.ndarray, trunc: float) -> float:
@@ -57,13 +64,50 @@ def chamfer_full_search(template: np.ndarray, data: np.ndarray, trunc: float) ->
     return float(d_td + d_dt)
 
 
+def fps_numpy(points: np.ndarray, n: int, seed: int = 0) -> np.ndarray:
+    """:func:`pointrig.preprocess.farthest_point_sampling` as before session 66: the numpy
+    loop, ``(min(n, m),)`` indices of ``points (m, 3)``."""
+    m = len(points)
+    if n >= m:
+        return np.arange(m)
+    idx = np.empty(n, dtype=np.int64)
+    idx[0] = np.random.default_rng(seed).integers(m)
+    d = np.sum((points - points[idx[0]]) ** 2, axis=1)
+    for i in range(1, n):
+        idx[i] = int(np.argmax(d))
+        d = np.minimum(d, np.sum((points - points[idx[i]]) ** 2, axis=1))
+    return idx
+
+
+def remove_sparse_kd(points: np.ndarray, k: int = 10, ratio: float = 4.0) -> np.ndarray:
+    """:func:`pointrig.preprocess.remove_sparse_points` as before session 66 (scipy k-d
+    tree): the points of ``(N, 3)`` whose ``k``-th neighbour is within ``ratio`` medians."""
+    if ratio <= 0 or len(points) <= k + 1:
+        return points.copy()
+    dk = cKDTree(points).query(points, k=k + 1, workers=-1)[0][:, -1]
+    return points[dk <= ratio * np.median(dk)]
+
+
+def nearest_kd(queries: np.ndarray, points: np.ndarray, cap: float | None = None) -> np.ndarray:
+    """:func:`pointrig.preprocess.nearest_distances` on a scipy k-d tree, ``(n,)`` metres."""
+    d = cKDTree(points).query(queries)[0]
+    return d if cap is None else np.minimum(d, cap)
+
+
+#: the reference form of each function of :data:`FUNCTIONS`, by name
+REFERENCE = {"chamfer_misfit": chamfer_full_search, "farthest_point_sampling": fps_numpy,
+             "remove_sparse_points": remove_sparse_kd, "nearest_distances": nearest_kd}
+
+
 @contextmanager
 def serial() -> Iterator[None]:
-    """The reference form: every worker count of :data:`WORKERS` 1, full chamfer searches."""
+    """The reference form: every worker count of :data:`WORKERS` 1, the functions of
+    :data:`FUNCTIONS` in their :data:`REFERENCE` forms."""
     saved = {(mod, name): getattr(mod, name) for mod, name in PATCHED}
     for mod, name in WORKERS:
         setattr(mod, name, 1)
-    joints_mod.chamfer_misfit = reg_mod.chamfer_misfit = chamfer_full_search
+    for mod, name in FUNCTIONS:
+        setattr(mod, name, REFERENCE[name])
     try:
         yield
     finally:

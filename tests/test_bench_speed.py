@@ -14,7 +14,12 @@ import bench_speed  # noqa: E402
 
 import pointrig.joints as joints_mod  # noqa: E402
 import pointrig.registration as reg_mod  # noqa: E402
-from pointrig.preprocess import chamfer_misfit  # noqa: E402
+from pointrig.preprocess import (  # noqa: E402
+    chamfer_misfit,
+    farthest_point_sampling,
+    nearest_distances,
+    remove_sparse_points,
+)
 
 
 def test_full_search_chamfer_equals_the_capped_search() -> None:
@@ -43,6 +48,8 @@ def test_serial_form_sets_and_restores_the_workers() -> None:
             assert all(getattr(m, n) == 1 for m, n in bench_speed.WORKERS)
             assert joints_mod.chamfer_misfit is bench_speed.chamfer_full_search
             assert reg_mod.chamfer_misfit is bench_speed.chamfer_full_search
+            for m, n in bench_speed.FUNCTIONS:
+                assert getattr(m, n) is bench_speed.REFERENCE[n]
             raise RuntimeError("inside")
     assert {(m, n): getattr(m, n) for m, n in bench_speed.PATCHED} == before
     assert all(v > 1 for (m, n), v in before.items() if n.endswith("_WORKERS"))
@@ -52,3 +59,19 @@ def test_serial_form_sets_and_restores_the_workers() -> None:
             if line.startswith("_") and line.split("=")[0].strip().endswith("_WORKERS"):
                 found.add((path.stem, line.split("=")[0].strip()))
     assert found == {(m.__name__.rsplit(".", 1)[1], n) for m, n in bench_speed.WORKERS}
+
+
+def test_reference_forms_equal_the_pipeline_s() -> None:
+    """Session 66's reference forms (numpy farthest-point loop, scipy k-d tree sparse filter
+    and nearest distances) give what the pipeline's Rust grid gives, so the serial form does
+    the same arithmetic."""
+    rng = np.random.default_rng(8)
+    pts = rng.normal(size=(3000, 3)) * [0.3, 0.8, 0.1]
+    pts[:40] = rng.uniform(-3, 3, (40, 3))
+    np.testing.assert_array_equal(bench_speed.fps_numpy(pts, 300, 4),
+                                  farthest_point_sampling(pts, 300, 4))
+    np.testing.assert_array_equal(bench_speed.remove_sparse_kd(pts, 10, 4.0),
+                                  remove_sparse_points(pts, 10, 4.0))
+    q = rng.normal(size=(500, 3))
+    np.testing.assert_allclose(bench_speed.nearest_kd(q, pts), nearest_distances(q, pts),
+                               rtol=0, atol=1e-12)
