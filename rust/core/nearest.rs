@@ -12,6 +12,7 @@
 use rayon::prelude::*;
 
 use crate::core::error::{CoreError, CoreResult};
+use crate::core::neighbors::bounding_box;
 
 /// Rows of cells (one per `(iy, iz)`) per point at most: the cell side grows when the box
 /// would need more (outliers far from the subject), so that the row table stays linear in
@@ -54,18 +55,12 @@ fn robust_extent(points: &[f64]) -> f64 {
 
 impl NnGrid {
     /// Bucket `points` (flat `(n, 3)`, finite, `n >= 1`) over their bounding box. The cell
-    /// side is `scale L / sqrt(n)` with `L = ext` the points' [`robust_extent`], about one spacing of `n` points spread over a surface of
-    /// size `L`; it grows when the box would need more than `ROWS_PER_POINT` rows per point.
+    /// side is `scale L / sqrt(n)` with `L = ext` the points' [`robust_extent`], about one
+    /// spacing of `n` points spread over a surface of size `L`; it grows when the box would
+    /// need more than `ROWS_PER_POINT` rows per point.
     fn new(points: &[f64], ext: f64, scale: f64) -> NnGrid {
         let n = points.len() / 3;
-        let mut lo = [f64::INFINITY; 3];
-        let mut hi = [f64::NEG_INFINITY; 3];
-        for p in points.chunks_exact(3) {
-            for a in 0..3 {
-                lo[a] = lo[a].min(p[a]);
-                hi[a] = hi[a].max(p[a]);
-            }
-        }
+        let (lo, hi) = bounding_box(points);
         let mut h = scale * ext / (n as f64).sqrt();
         if !(h.is_finite() && h > 0.0) {
             h = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
@@ -443,6 +438,17 @@ mod tests {
         ((*seed >> 11) as f64) / ((1u64 << 53) as f64)
     }
 
+    /// `n` random points on a sphere shell of radius 0.5 (flat `(n, 3)`).
+    fn sphere(seed: &mut u64, n: usize) -> Vec<f64> {
+        let mut p = Vec::with_capacity(3 * n);
+        for _ in 0..n {
+            let (u, v) = (lcg(seed) * 2.0 - 1.0, lcg(seed) * std::f64::consts::TAU);
+            let r = (1.0 - u * u).sqrt();
+            p.extend_from_slice(&[0.5 * r * v.cos(), 0.5 * r * v.sin(), 0.5 * u]);
+        }
+        p
+    }
+
     fn brute(q: &[f64], p: &[f64], cap: f64) -> Vec<f64> {
         q.chunks_exact(3)
             .map(|a| {
@@ -460,12 +466,7 @@ mod tests {
     fn matches_brute_force_on_a_surface_with_outliers() {
         let mut s = 7u64;
         // points on a sphere shell of radius 0.5, plus far outliers
-        let mut p = Vec::new();
-        for _ in 0..1500 {
-            let (u, v) = (lcg(&mut s) * 2.0 - 1.0, lcg(&mut s) * std::f64::consts::TAU);
-            let r = (1.0 - u * u).sqrt();
-            p.extend_from_slice(&[0.5 * r * v.cos(), 0.5 * r * v.sin(), 0.5 * u]);
-        }
+        let mut p = sphere(&mut s, 1500);
         for _ in 0..20 {
             p.extend_from_slice(&[
                 lcg(&mut s) * 20.0 - 10.0,
@@ -535,12 +536,7 @@ mod tests {
     #[test]
     fn kth_distances_match_brute_force() {
         let mut s = 11u64;
-        let mut p = Vec::new();
-        for _ in 0..1200 {
-            let (u, v) = (lcg(&mut s) * 2.0 - 1.0, lcg(&mut s) * std::f64::consts::TAU);
-            let r = (1.0 - u * u).sqrt();
-            p.extend_from_slice(&[0.5 * r * v.cos(), 0.5 * r * v.sin(), 0.5 * u]);
-        }
+        let mut p = sphere(&mut s, 1200);
         for _ in 0..30 {
             p.extend_from_slice(&[lcg(&mut s) * 6.0 - 3.0, lcg(&mut s) * 6.0, 0.0]);
         }

@@ -24,6 +24,20 @@ pub struct Grid {
     order: Vec<u32>,
 }
 
+/// Per-axis minimum and maximum `(lo, hi)` of flat `(n, 3)` points (`+inf` / `-inf` when
+/// `n = 0`).
+pub(crate) fn bounding_box(points: &[f64]) -> ([f64; 3], [f64; 3]) {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for p in points.chunks_exact(3) {
+        for a in 0..3 {
+            lo[a] = lo[a].min(p[a]);
+            hi[a] = hi[a].max(p[a]);
+        }
+    }
+    (lo, hi)
+}
+
 impl Grid {
     /// Bucket `points` (flat row-major `(n, 3)`, finite) into cells of side at least `h`.
     ///
@@ -31,14 +45,7 @@ impl Grid {
     /// than `MAX_CELLS` cells (queries stay exact, only slower).
     pub fn new(points: &[f64], h: f64) -> Grid {
         let n = points.len() / 3;
-        let mut lo = [f64::INFINITY; 3];
-        let mut hi = [f64::NEG_INFINITY; 3];
-        for p in points.chunks_exact(3) {
-            for a in 0..3 {
-                lo[a] = lo[a].min(p[a]);
-                hi[a] = hi[a].max(p[a]);
-            }
-        }
+        let (mut lo, mut hi) = bounding_box(points);
         if n == 0 {
             lo = [0.0; 3];
             hi = [0.0; 3];
