@@ -130,3 +130,19 @@ def test_remove_sparse_points_keeps_what_the_kd_tree_rule_keeps() -> None:
         want = pts[dk <= ratio * np.median(dk)]
         assert len(want) < len(pts)
         np.testing.assert_array_equal(remove_sparse_points(pts, k, ratio), want)
+
+
+def test_stray_points_far_away_keep_distances_exact() -> None:
+    """Stray points a kilometre and a thousand kilometres from the subject (searched in far
+    levels of their own) and queries beyond them: nearest and k-th distances equal scipy's."""
+    rng = np.random.default_rng(7)
+    pts = _scan_cloud(rng, 3000)
+    pts[:3] = [[0.0, 1e3, 2.0], [-2e6, 0.5, 2.0], [0.3, 0.2, 1e6]]
+    q = np.vstack([_scan_cloud(rng, 500), [[0.0, 2e3, 2.0], [-1e6, 0.0, 0.0], [5.0, 5.0, 5.0]]])
+    tree = cKDTree(pts)
+    for cap in (0.01, 1.0, 1e7):
+        np.testing.assert_allclose(_core.capped_nn_distances(q, pts, cap),
+                                   np.minimum(tree.query(q)[0], cap), rtol=1e-12, atol=1e-9)
+    for k in (1, 10):
+        np.testing.assert_allclose(_core.kth_nn_distances(q, pts, k),
+                                   tree.query(q, k=[k])[0][:, 0], rtol=1e-12, atol=1e-9)

@@ -35,27 +35,26 @@ struct NnGrid {
     sorted: Vec<f64>,
 }
 
-/// The largest 1-99 % extent over the three axes of flat `(n, 3)` points (`n >= 1`), read
-/// on at most 2048 of them (every `n / 2048`-th): a scale for the cell side that a few
-/// outliers do not set.
-fn robust_extent(points: &[f64]) -> f64 {
+/// The per-axis 1-99 % bounds `(lo, hi)` of flat `(n, 3)` points (`n >= 1`), read on at
+/// most 2048 of them (every `n / 2048`-th): a box and a scale that a few outliers do not set.
+fn robust_box(points: &[f64]) -> ([f64; 3], [f64; 3]) {
     let n = points.len() / 3;
     let step = n.div_ceil(2048).max(1);
-    let mut ext = 0.0f64;
+    let mut lo = [0.0f64; 3];
+    let mut hi = [0.0f64; 3];
     for a in 0..3 {
         let mut v: Vec<f64> = points.chunks_exact(3).step_by(step).map(|p| p[a]).collect();
         let k_lo = ((v.len() - 1) as f64 * 0.01).round() as usize;
         let k_hi = ((v.len() - 1) as f64 * 0.99).round() as usize;
-        let lo = *v.select_nth_unstable_by(k_lo, |x, y| x.total_cmp(y)).1;
-        let hi = *v.select_nth_unstable_by(k_hi, |x, y| x.total_cmp(y)).1;
-        ext = ext.max(hi - lo);
+        lo[a] = *v.select_nth_unstable_by(k_lo, |x, y| x.total_cmp(y)).1;
+        hi[a] = *v.select_nth_unstable_by(k_hi, |x, y| x.total_cmp(y)).1;
     }
-    ext
+    (lo, hi)
 }
 
 impl NnGrid {
     /// Bucket `points` (flat `(n, 3)`, finite, `n >= 1`) over their bounding box. The cell
-    /// side is `scale L / sqrt(n)` with `L = ext` the points' [`robust_extent`], about one
+    /// side is `scale L / sqrt(n)` with `L = ext` the largest extent of [`robust_box`], about one
     /// spacing of `n` points spread over a surface of size `L`; it grows when the box would
     /// need more than `ROWS_PER_POINT` rows per point.
     fn new(points: &[f64], ext: f64, scale: f64) -> NnGrid {
@@ -163,7 +162,19 @@ impl NnGrid {
                 visit(state, p);
             }
         };
-        let mut r: i64 = 0;
+        // rings nearer than the box hold no cell of it: start at the first that does (a
+        // query far outside the box would otherwise walk one empty ring per cell)
+        let gap = |c: i64, n: i64| (-c).max(c - (n - 1)).max(0);
+        let mut r = gap(c[0], nx).max(gap(c[1], ny)).max(gap(c[2], nz));
+        if r > 0 {
+            // the checks of ring r - 1, the last one walked through
+            if done(state, ((r - 1) as f64 * self.h).powi(2)) {
+                return true;
+            }
+            if r > max_ring {
+                return false;
+            }
+        }
         loop {
             let z0 = (c[2] - r).max(0);
             let z1 = (c[2] + r).min(nz - 1);
@@ -258,32 +269,81 @@ fn sq_dist(p: &[f64], q: [f64; 3]) -> f64 {
 
 /// A fine grid (about one point spacing per cell) for the queries near the points and a
 /// coarse one (`COARSE` times the side) for the far ones, which the fine grid would search
-/// through many empty rings.
+/// through many empty rings. Points farther than [`FAR_MARGIN`] robust extents outside the
+/// points' 1-99 % box (a stray point kilometres away) are left out of both and searched in a
+/// level of their own (`far`, built the same way): in the grids they would set a box so large
+/// that the whole subject fell into one cell.
 struct Nearest {
     fine: NnGrid,
     coarse: NnGrid,
+    far: Option<Box<Nearest>>,
 }
 
 /// Fine rings searched before a query moves to the coarse grid.
 const FINE_RINGS: i64 = 2;
 /// Cell side of the coarse grid over the fine one.
 const COARSE: f64 = 8.0;
+/// Margin round the 1-99 % box, in units of its largest extent, beyond which points go to the
+/// far level.
+const FAR_MARGIN: f64 = 1.0;
 
 impl Nearest {
+    /// The levels for flat `(n, 3)` finite points, `n >= 1`.
     fn new(points: &[f64]) -> Nearest {
-        let ext = robust_extent(points);
+        let (lo, hi) = robust_box(points);
+        let ext = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
+        let margin = FAR_MARGIN * ext;
+        let near = |p: &[f64]| (0..3).all(|a| p[a] >= lo[a] - margin && p[a] <= hi[a] + margin);
+        let n_near = points.chunks_exact(3).filter(|p| near(p)).count();
+        // every point in the grids when none is far, or when none is near (no progress)
+        if n_near == points.len() / 3 || n_near == 0 {
+            return Nearest {
+                fine: NnGrid::new(points, ext, 1.0),
+                coarse: NnGrid::new(points, ext, COARSE),
+                far: None,
+            };
+        }
+        let (mut inner, mut outer) = (Vec::with_capacity(3 * n_near), Vec::new());
+        for p in points.chunks_exact(3) {
+            if near(p) {
+                inner.extend_from_slice(p);
+            } else {
+                outer.extend_from_slice(p);
+            }
+        }
         Nearest {
-            fine: NnGrid::new(points, ext, 1.0),
-            coarse: NnGrid::new(points, ext, COARSE),
+            fine: NnGrid::new(&inner, ext, 1.0),
+            coarse: NnGrid::new(&inner, ext, COARSE),
+            far: Some(Box::new(Nearest::new(&outer))),
         }
     }
 
     /// Exact smallest squared distance from `q` to a point, capped at `cap2`.
     fn nearest_sq(&self, q: [f64; 3], cap2: f64) -> f64 {
-        match self.fine.nearest_sq(q, cap2, FINE_RINGS) {
+        let best = match self.fine.nearest_sq(q, cap2, FINE_RINGS) {
             Some(d) => d,
             // the coarse search has no ring limit, so it always answers
             None => self.coarse.nearest_sq(q, cap2, i64::MAX).unwrap_or(cap2),
+        };
+        // a far point counts only when nearer than the best so far
+        match &self.far {
+            Some(far) => far.nearest_sq(q, best),
+            None => best,
+        }
+    }
+
+    /// The `k` smallest squared distances from `q` merged into `best` (ascending, `k` slots,
+    /// infinity where none yet); `scratch` is a buffer of the same length.
+    fn k_nearest_sq(&self, q: [f64; 3], best: &mut [f64], scratch: &mut [f64]) {
+        // the fine search scans a prefix of the rings; when it cannot answer, the coarse one
+        // starts again from what `best` held (it would count the fine search's points twice)
+        scratch.copy_from_slice(best);
+        if !self.fine.k_nearest_sq(q, best, FINE_RINGS_K) {
+            best.copy_from_slice(scratch);
+            self.coarse.k_nearest_sq(q, best, i64::MAX);
+        }
+        if let Some(far) = &self.far {
+            far.k_nearest_sq(q, best, scratch);
         }
     }
 }
@@ -355,13 +415,10 @@ pub fn kth_nn_distances(queries: &[f64], points: &[f64], k: usize) -> CoreResult
         .zip(queries.par_chunks(3 * CHUNK))
         .for_each(|(o, qs)| {
             let mut best = vec![f64::INFINITY; k];
+            let mut scratch = vec![f64::INFINITY; k];
             for (d, q) in o.iter_mut().zip(qs.chunks_exact(3)) {
-                let q = [q[0], q[1], q[2]];
                 best.fill(f64::INFINITY);
-                if !grid.fine.k_nearest_sq(q, &mut best, FINE_RINGS_K) {
-                    best.fill(f64::INFINITY);
-                    grid.coarse.k_nearest_sq(q, &mut best, i64::MAX);
-                }
+                grid.k_nearest_sq([q[0], q[1], q[2]], &mut best, &mut scratch);
                 *d = best[k - 1].sqrt();
             }
         });
@@ -488,6 +545,60 @@ mod tests {
             let want = brute(&q, &p, cap);
             for (g, w) in got.iter().zip(&want) {
                 assert!((g - w).abs() < 1e-12, "cap {cap}: {g} vs {w}");
+            }
+        }
+    }
+
+    #[test]
+    fn far_points_and_far_queries_are_exact() {
+        // a subject with stray points kilometres and a thousand kilometres away along each
+        // axis: they go to far levels, and the distances stay exact for queries near the
+        // subject, between the strays and beyond them
+        let mut s = 5u64;
+        let mut p = sphere(&mut s, 2000);
+        for (i, far) in [2e3, -5e3, 1e6, -3e6].iter().enumerate() {
+            let mut v = [0.1, -0.2, 0.3];
+            v[i % 3] += far;
+            p.extend_from_slice(&v);
+        }
+        for _ in 0..60 {
+            p.extend_from_slice(&[lcg(&mut s) * 40.0, 0.0, lcg(&mut s) * -40.0]);
+        }
+        let mut q = sphere(&mut s, 300);
+        q.extend_from_slice(&[
+            2e3 + 1.0,
+            -0.2,
+            0.3,
+            0.0,
+            1e7,
+            0.0,
+            -4e6,
+            3.0,
+            1.0,
+            20.0,
+            0.5,
+            -20.0,
+        ]);
+        for cap in [0.05, 3.0, 1e8] {
+            let got = capped_nn_distances(&q, &p, cap).unwrap();
+            for (g, w) in got.iter().zip(brute(&q, &p, cap)) {
+                assert!((g - w).abs() <= 1e-9 * w.max(1.0), "cap {cap}: {g} vs {w}");
+            }
+        }
+        let np = p.len() / 3;
+        for k in [1, 7, np - 2, np] {
+            let got = kth_nn_distances(&q, &p, k).unwrap();
+            for (i, g) in got.iter().enumerate() {
+                let mut d: Vec<f64> = p
+                    .chunks_exact(3)
+                    .map(|b| sq_dist(b, [q[3 * i], q[3 * i + 1], q[3 * i + 2]]).sqrt())
+                    .collect();
+                d.sort_by(f64::total_cmp);
+                let w = d[k - 1];
+                assert!(
+                    (g - w).abs() <= 1e-9 * w.max(1.0),
+                    "k {k} query {i}: {g} vs {w}"
+                );
             }
         }
     }
