@@ -31,6 +31,7 @@ def main(argv: list[str] | None = None) -> int:
         ["bench_structure.py"],
         ["bench_structure_suite.py", "--timing"],
         ["bench_render.py"],
+        ["bench_nearest.py"],
         ["bench_refine.py", "--frames", frames],
         ["bench_joint_oracle.py", "--frames", frames],
         ["bench_bone_spin.py", "--frames", frames],
