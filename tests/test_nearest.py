@@ -146,3 +146,12 @@ def test_stray_points_far_away_keep_distances_exact() -> None:
     for k in (1, 10):
         np.testing.assert_allclose(_core.kth_nn_distances(q, pts, k),
                                    tree.query(q, k=[k])[0][:, 0], rtol=1e-12, atol=1e-9)
+
+
+def test_no_cap_means_no_cap() -> None:
+    """``nearest_distances`` without a cap returns the exact distance even to a point
+    10^9 m away, and an empty point set gives the largest float."""
+    pts = np.array([[0.0, 1e9, 0.0], [0.0, 2e9, 0.0]])
+    q = np.zeros((2, 3))
+    np.testing.assert_allclose(nearest_distances(q, pts), [1e9, 1e9], rtol=1e-15)
+    assert np.all(nearest_distances(q, np.empty((0, 3))) == np.finfo(np.float64).max)

@@ -263,6 +263,10 @@ def farthest_point_sampling(points: np.ndarray, n: int, seed: int = 0) -> np.nda
                                          int(n), first)
 
 
+#: the cap that is no cap: the largest finite float (its square is infinite, above any distance)
+_NO_CAP = float(np.finfo(np.float64).max)
+
+
 def nearest_distances(queries: np.ndarray, points: np.ndarray,
                       cap: float | None = None) -> np.ndarray:
     """Distance from each query to its nearest point, metres (Rust grid, exact).
@@ -275,7 +279,7 @@ def nearest_distances(queries: np.ndarray, points: np.ndarray,
         ``(N, 3)`` points searched, metres.
     cap
         Distances are returned as ``min(d, cap)`` (metres, > 0); the search stops at the
-        cap. ``None``: no cap in practice (1e6 m, far beyond any frame the reader accepts).
+        cap. ``None``: no cap (the largest float).
 
     Returns
     -------
@@ -284,7 +288,7 @@ def nearest_distances(queries: np.ndarray, points: np.ndarray,
     """
     return _core.capped_nn_distances(np.ascontiguousarray(queries, dtype=np.float64),
                                      np.ascontiguousarray(points, dtype=np.float64),
-                                     1e6 if cap is None else float(cap))
+                                     _NO_CAP if cap is None else float(cap))
 
 
 def chamfer_misfit(template: np.ndarray, data: np.ndarray, trunc: float) -> float:
