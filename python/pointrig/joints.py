@@ -48,7 +48,7 @@ from . import _core
 from .config import JointsConfig
 from .errors import ConfigError, InputError
 from .kinematics import joint_trajectories, solve_joint_positions
-from .preprocess import chamfer_misfit, estimate_normals, mean_spacing
+from .preprocess import chamfer_misfit, estimate_normals, mean_spacing, nearest_distances
 from .view import view_depth_correct
 
 __all__ = ["JointsResult", "StructureLike", "learn_joints", "posed_rest_points", "e_step",
@@ -450,14 +450,14 @@ def _predict_rigid(R1: np.ndarray, T1: np.ndarray, R0: np.ndarray, T0: np.ndarra
 
 
 def _fit_and_score(fit_frame: Callable[..., tuple[np.ndarray, np.ndarray, np.ndarray]],
-                   v: np.ndarray, packed: tuple[np.ndarray, np.ndarray], tree: Any,
+                   v: np.ndarray, packed: tuple[np.ndarray, np.ndarray],
                    vn: np.ndarray | None, trunc: float | None,
                    start: tuple[np.ndarray, np.ndarray]
                    ) -> tuple[float, np.ndarray, np.ndarray]:
     """One tracking hypothesis of a frame: ``fit_frame`` from ``start`` (``(B, 3, 3)``,
     ``(B, 3)``), and the fit's truncated chamfer misfit to the frame ``v`` ``(N, 3)`` (metres;
     0 when ``trunc`` is None: a single hypothesis needs no score). Returns ``(misfit, R, T)``."""
-    Rt, Tt, X = fit_frame(v, packed, tree, start[0], start[1], vn)
+    Rt, Tt, X = fit_frame(v, packed, start[0], start[1], vn)
     return (0.0 if trunc is None else chamfer_misfit(X, v, trunc)), Rt, Tt
 
 
@@ -536,15 +536,13 @@ def track_bones(
         Rf, Tf = _flat_rt(Rb[None], Tb[None])
         return _core.lbs_skin(Q, idx, w, Rf, Tf, 1).reshape(M, 3)
 
-    from scipy.spatial import cKDTree
-
     use_normals = normals is not None and config.track_normal_kappa > 0
 
-    def fit_frame(v: np.ndarray, packed: tuple[np.ndarray, np.ndarray], tree: Any,
+    def fit_frame(v: np.ndarray, packed: tuple[np.ndarray, np.ndarray],
                   Rt: np.ndarray, Tt: np.ndarray,
                   vn: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         Tt, X = _fixed_joint_translations(Rt, Tt[root], joints, parent, skin)
-        d2 = tree.query(X)[0] ** 2
+        d2 = nearest_distances(X, v) ** 2
         tau = float(np.clip(4.0 / 3.0 * d2.mean(), tau0, tau_max))
         anneal = config.track_anneal
         k_coarse = (int(np.ceil(np.log(tau / tau0) / np.log(1.0 / anneal)))
@@ -581,7 +579,7 @@ def track_bones(
 
     order = [rest_index] + list(range(rest_index + 1, F)) + list(range(rest_index - 1, -1, -1))
     # a frame's hypotheses are independent fits: they run side by side (the native calls and
-    # the k-d tree queries release the GIL), each with the same arithmetic as alone
+    # the nearest-distance queries release the GIL), each with the same arithmetic as alone
     with ThreadPoolExecutor(max_workers=_TRACK_WORKERS) as pool:
         for done, t in enumerate(order, start=1):
             if progress is not None and done > 1:
@@ -607,7 +605,6 @@ def track_bones(
                 R[t] = Rt
                 T[t] = _fixed_joint_translations(Rt, Tt[root], joints, parent, skin)[0]
                 continue
-            tree = cKDTree(v)
             if t != rest_index and (p2 - rest_index) * s >= 0 and config.track_velocity > 0 \
                     and config.track_predict_check > 0:
                 # the previous pose instead of the prediction when it explains the frame better
@@ -622,7 +619,7 @@ def track_bones(
             packed = pack_frames([v])
             vn = normals[1][t] if use_normals else None
 
-            fit = partial(_fit_and_score, fit_frame, v, packed, tree, vn,
+            fit = partial(_fit_and_score, fit_frame, v, packed, vn,
                           trunc if len(starts) > 1 else None)
             fits = list(pool.map(fit, starts))
             best = min(fits, key=lambda f: f[0])  # the first on a tie
