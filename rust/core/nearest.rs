@@ -1,6 +1,6 @@
-//! Exact nearest-neighbour distances, capped, on a uniform grid, and the symmetric truncated
-//! chamfer misfit built on them (step 1's prediction check and rest-frame choice, step 3's
-//! choice between a frame's tracked hypotheses).
+//! Exact nearest and `k`-th nearest distances, capped, on a uniform grid; the symmetric
+//! truncated chamfer misfit built on them (step 1's prediction check and rest-frame choice,
+//! step 3's choice between a frame's tracked hypotheses); farthest-point sampling.
 //!
 //! The points are bucketed into cubic cells of side `h` (a counting sort). A query searches
 //! the cells ring by ring in Chebyshev index distance from its own cell: every point in a
@@ -8,6 +8,8 @@
 //! after ring `r` once the best distance found is at most `r h`, or once `r h` reaches the
 //! cap (farther points do not matter), or once the rings have covered the whole grid. The
 //! result is the exact distance to the nearest point, capped, the same as a k-d tree's.
+//! Stray points far outside the bulk of the points are searched in a level of their own
+//! ([`Nearest`]), so they cannot make the cells of the bulk large.
 
 use rayon::prelude::*;
 
@@ -15,8 +17,8 @@ use crate::core::error::{CoreError, CoreResult};
 use crate::core::neighbors::bounding_box;
 
 /// Rows of cells (one per `(iy, iz)`) per point at most: the cell side grows when the box
-/// would need more (outliers far from the subject), so that the row table stays linear in
-/// the points. Cells along x cost nothing: each row holds only its points, sorted by cell.
+/// would need more (a flat or sparse level, such as a far level of a few scattered points),
+/// so that the row table stays linear in the points. Cells along x cost nothing: each row holds only its points, sorted by cell.
 const ROWS_PER_POINT: usize = 16;
 
 /// Queries per rayon task.
@@ -281,6 +283,8 @@ struct Nearest {
 
 /// Fine rings searched before a query moves to the coarse grid.
 const FINE_RINGS: i64 = 2;
+/// Fine rings searched by a `k`-nearest query before it moves to the coarse grid.
+const FINE_RINGS_K: i64 = 5;
 /// Cell side of the coarse grid over the fine one.
 const COARSE: f64 = 8.0;
 /// Margin round the 1-99 % box, in units of its largest extent, beyond which points go to the
@@ -391,9 +395,6 @@ pub fn capped_nn_distances(queries: &[f64], points: &[f64], cap: f64) -> CoreRes
         });
     Ok(out)
 }
-
-/// Fine rings searched by a `k`-nearest query before it moves to the coarse grid.
-const FINE_RINGS_K: i64 = 5;
 
 /// For each query (flat `(n, 3)`), the distance to its `k`-th nearest point of `points`
 /// (flat `(N, 3)`, `1 <= k <= N`; a query that is itself one of the points counts itself

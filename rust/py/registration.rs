@@ -17,7 +17,7 @@ use pyo3::types::PyDict;
 
 use super::{flat1, flat2, points, to_array2, to_pyerr};
 use crate::core::deform::{self, DataTerm, FrameParams, Graph, NodeState, Solver, Weights};
-use crate::core::error::check_finite;
+use crate::core::error::{check_finite, CoreResult};
 use crate::core::gmm::{self, Precision};
 
 /// Node rotations `R (J, 3, 3)`, checked for shape and finiteness.
@@ -499,6 +499,20 @@ fn chamfer_misfit(
         .map_err(|e| to_pyerr(py, e))
 }
 
+/// `(n,)` per-query distances from `queries (n, 3)` to `points_ (N, 3)` by `f`, run without
+/// the GIL: the shared body of [`capped_nn_distances`] and [`kth_nn_distances`].
+fn query_distances<'py>(
+    py: Python<'py>,
+    queries: &PyReadonlyArray2<'py, f64>,
+    points_: &PyReadonlyArray2<'py, f64>,
+    f: impl FnOnce(&[f64], &[f64]) -> CoreResult<Vec<f64>> + Send,
+) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    let q = points(py, queries, "queries")?;
+    let p = points(py, points_, "points")?;
+    let d = py.detach(|| f(q, p)).map_err(|e| to_pyerr(py, e))?;
+    Ok(PyArray1::from_vec(py, d))
+}
+
 /// Each query's distance to its nearest point, capped (see `_core.pyi`).
 #[pyfunction]
 fn capped_nn_distances<'py>(
@@ -507,12 +521,9 @@ fn capped_nn_distances<'py>(
     points_: PyReadonlyArray2<'py, f64>,
     cap: f64,
 ) -> PyResult<Bound<'py, PyArray1<f64>>> {
-    let q = points(py, &queries, "queries")?;
-    let p = points(py, &points_, "points")?;
-    let d = py
-        .detach(|| crate::core::nearest::capped_nn_distances(q, p, cap))
-        .map_err(|e| to_pyerr(py, e))?;
-    Ok(PyArray1::from_vec(py, d))
+    query_distances(py, &queries, &points_, |q, p| {
+        crate::core::nearest::capped_nn_distances(q, p, cap)
+    })
 }
 
 /// Each query's distance to its `k`-th nearest point (see `_core.pyi`).
@@ -523,12 +534,9 @@ fn kth_nn_distances<'py>(
     points_: PyReadonlyArray2<'py, f64>,
     k: usize,
 ) -> PyResult<Bound<'py, PyArray1<f64>>> {
-    let q = points(py, &queries, "queries")?;
-    let p = points(py, &points_, "points")?;
-    let d = py
-        .detach(|| crate::core::nearest::kth_nn_distances(q, p, k))
-        .map_err(|e| to_pyerr(py, e))?;
-    Ok(PyArray1::from_vec(py, d))
+    query_distances(py, &queries, &points_, |q, p| {
+        crate::core::nearest::kth_nn_distances(q, p, k)
+    })
 }
 
 /// Farthest-point sampling indices (see `_core.pyi`).
