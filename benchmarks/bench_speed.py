@@ -7,8 +7,8 @@ forward and backward chains one after the other (``pointrig.registration._CHAIN_
 1``), step 2's ensemble seeds one after the other (``pointrig.structure._ENSEMBLE_WORKERS =
 1``) and the chamfer misfit searching every nearest neighbour to the end (no
 ``distance_upper_bound``) on scipy k-d trees; and, as before session 66's Rust grid
-(``rust/core/nearest.rs``), farthest-point sampling as a numpy loop, the sparse-point filter
-and step 1's start sigma^2 on scipy k-d trees. Both forms do the same arithmetic, so the
+(``rust/core/nearest.rs``), farthest-point sampling as a numpy loop, the sparse-point filter,
+step 1's start sigma^2 and the tracker's start tau on scipy k-d trees. Both forms do the same arithmetic, so the
 benchmark also checks that the skeletons agree. Prints per
 sequence the seconds of each stage for both and their ratio::
 
@@ -49,7 +49,8 @@ WORKERS = ((joints_mod, "_TRACK_WORKERS"), (reg_mod, "_REFINE_WORKERS"),
 #: the module functions the serial form replaces by its reference forms (and restores)
 FUNCTIONS = ((joints_mod, "chamfer_misfit"), (reg_mod, "chamfer_misfit"),
              (pre_mod, "farthest_point_sampling"), (reg_mod, "farthest_point_sampling"),
-             (pre_mod, "remove_sparse_points"), (reg_mod, "nearest_distances"))
+             (pre_mod, "remove_sparse_points"), (reg_mod, "nearest_distances"),
+             (joints_mod, "nearest_distances"))
 #: everything the serial form changes (and restores)
 PATCHED = WORKERS + FUNCTIONS
 
