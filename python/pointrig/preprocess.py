@@ -96,8 +96,8 @@ def remove_sparse_points(points: np.ndarray, k: int = 10, ratio: float = 4.0) ->
     if ratio <= 0 or n <= k + 1:
         return points.copy()
     # the k-th neighbour other than the point itself: rank k + 1 counting the point
-    dk = _core.kth_nn_distances(np.ascontiguousarray(points, dtype=np.float64),
-                                np.ascontiguousarray(points, dtype=np.float64), k + 1)
+    p = np.ascontiguousarray(points, dtype=np.float64)
+    dk = _core.kth_nn_distances(p, p, k + 1)
     return points[dk <= ratio * np.median(dk)]
 
 
