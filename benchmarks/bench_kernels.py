@@ -132,7 +132,7 @@ def main(argv: list[str] | None = None) -> int:
          lambda: skin(q, w_full, syn.bone_rotations, syn.bone_translations)),
         (f"step 3 E-step Eq. 4 (N~{n_obs})",
          lambda: e_step(syn.frames, y, tau, 0.01).P1,
-         lambda: e_step_numpy(syn.frames, y, tau, 0.01, n_neighbors=32).P1),
+         lambda: e_step_numpy(syn.frames, y, tau, 0.01, n_neighbors=48).P1),
         ("step 3 weight QP x200 (SLSQP)",
          lambda: np.array([_core.simplex_qp(h, g) for h, g in qp]),
          lambda: np.array([slsqp_simplex(h, g) for h, g in qp])),
