@@ -37,6 +37,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=6)
     a = ap.parse_args(argv)
+    if a.frames < 2:
+        ap.error("--frames must be >= 2: the static planes are found across frames")
     print(f"{'scene':<12} {'points':>7} {'off-plane':>9} {'exact ms':>9} {'cells ms':>9} "
           f"{'ratio':>6} {'differ':>7} {'remove_background ms/frame':>27}")
     scenes: list[tuple[str, dict]] = [(f, {}) for f in ("human", "quadruped", "upper_body")]

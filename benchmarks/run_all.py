@@ -29,7 +29,7 @@ def runs(quick: bool) -> list[list[str]]:
             ["bench_registration", "--frames", "20"],
             ["bench_nearest", "--sizes", "10000", "--repeat", "1"],
             ["bench_render"],
-            ["bench_background", "--frames", "1"],
+            ["bench_background", "--frames", "2"],
             ["bench_speed", "--frames", "20"],
             ["bench_suite", "--frames", "20", "--only", "human,hand"],
         ]
