@@ -1,15 +1,14 @@
 """Background removal speed on room scenes (640x480 frames, ~300k points each).
 
 For each scene (``pointrig.synth`` figures with floor and back wall, and the greenman glTF
-rig when ``../shared/data/models`` is present) the static planes are
-found once, then per frame the connected-piece search of :func:`pointrig.preprocess.
-remove_background` runs twice on the same points: the cell-representative graph
-(``_connected_pieces``, the default since session 22) and the exact point graph (every
-pair within the radius; the code before session 22), measured in the same run. Prints the
-time per frame of each, their ratio, and how many points the two leave in a different
-largest piece; then the whole ``remove_background`` per frame::
+rig when it is in :data:`benchmarks.sets.MODELS`) the static planes are found once, then per
+frame the connected-piece search of :func:`pointrig.preprocess.remove_background` runs twice
+on the same points: the cell-representative graph the pipeline uses (``_connected_pieces``)
+and the reference, the exact point graph (every pair within the radius), measured in the same
+run. Prints the time per frame of each, their ratio, and how many points the two leave in a
+different largest piece; then the whole ``remove_background`` per frame::
 
-    PYTHONPATH=python python benchmarks/bench_background.py [--frames 6]
+    python -m benchmarks.bench_background [--frames 6]
 """
 
 from __future__ import annotations
@@ -19,6 +18,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from benchmarks.sets import MODELS
 from pointrig.preprocess import (
     _band_distance,
     _connected_pieces,
@@ -29,14 +30,15 @@ from pointrig.preprocess import (
 )
 from pointrig.synth import NoiseConfig, synthesize
 
+_GREENMAN = MODELS / "greenman.glb"
 
-_GREENMAN = Path(__file__).resolve().parents[2] / "shared" / "data" / "models" / "greenman.glb"
 
-
-def main() -> None:
+def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=6)
-    a = ap.parse_args()
+    a = ap.parse_args(argv)
+    if a.frames < 2:
+        ap.error("--frames must be >= 2: the static planes are found across frames")
     print(f"{'scene':<12} {'points':>7} {'off-plane':>9} {'exact ms':>9} {'cells ms':>9} "
           f"{'ratio':>6} {'differ':>7} {'remove_background ms/frame':>27}")
     scenes: list[tuple[str, dict]] = [(f, {}) for f in ("human", "quadruped", "upper_body")]
@@ -68,7 +70,8 @@ def main() -> None:
               f"{1e3 * np.mean(te):>9.0f} "
               f"{1e3 * np.mean(tc):>9.0f} {np.mean(te) / np.mean(tc):>5.1f}x {differ:>7} "
               f"{1e3 * tb:>27.0f}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

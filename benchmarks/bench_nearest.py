@@ -2,34 +2,32 @@
 
 Measured in the same run on a depth-like frame (a noisy half cylinder seen from one side, 2 %
 uniform outliers round it), with no stray point and with one stray point 1 km or 1000 km away
-(session 66: before the far level, a stray 1000 km away put the whole subject in one cell of
-the grid). Prints per size and stray the best of ``--repeat`` runs, in milliseconds, of the
-``k``-th neighbour distance of every point (``remove_sparse_points``: k = 11), the truncated
-chamfer misfit of a 2000-point template (step 1's and step 3's checks, cap 0.1 m) and the
-uncapped nearest distance of 5000 queries (the start sigma^2), each with scipy's time and the
-ratio scipy / grid; every value is checked equal to scipy's::
+(the grid keeps far points on a level of their own, so a stray must not slow it down). Prints
+per size and stray the best of ``--repeat`` runs, in milliseconds, of three queries, each with
+scipy's time and the ratio scipy / grid, every value checked equal to scipy's:
 
-    PYTHONPATH=python python benchmarks/bench_nearest.py
-    PYTHONPATH=python python benchmarks/bench_nearest.py --sizes 10000,300000 --repeat 5
+* the ``k``-th neighbour distance of every point (``remove_sparse_points``: k = 11);
+* the truncated chamfer misfit of a 2000-point template (step 1's and step 3's checks, cap
+  0.1 m);
+* the uncapped nearest distance of 5000 queries (the start sigma^2).
+
+Run::
+
+    python -m benchmarks.bench_nearest
+    python -m benchmarks.bench_nearest --sizes 10000,100000,300000 --repeat 5
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from collections.abc import Callable
-from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from bench_speed import chamfer_full_search  # noqa: E402
-
-from pointrig import _core  # noqa: E402
+from benchmarks.bench_speed import chamfer_full_search
+from pointrig import _core
 
 
 def depth_frame(n: int, seed: int = 0) -> np.ndarray:
@@ -54,7 +52,7 @@ def best_ms(fn: Callable[[], np.ndarray | float], repeat: int) -> tuple[float, o
     return 1e3 * best, out
 
 
-def main(argv: list[str]) -> int:
+def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", default="10000,100000", help="points per frame, comma-separated")
     ap.add_argument("--repeat", type=int, default=3)
@@ -91,4 +89,4 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main(sys.argv[1:]))
+    raise SystemExit(main())

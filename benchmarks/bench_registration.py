@@ -1,15 +1,21 @@
-"""Registration benchmark (step 1, §4): prints tables; not a timed test.
+"""Step 1 (registration, §4): the E-step kernel, a whole sequence, and probreg's CPD.
 
-1. E-step per iteration at M = 2000, N = 10000: dense and truncated (sigma = 1 cm), Rust
-   float64 / float32 and a numpy reference, 1 and 2 threads (each in a subprocess with
-   RAYON_NUM_THREADS set).
-2. Registration milliseconds per frame on a synthetic sequence (default 100 frames).
-3. probreg's non-rigid CPD on one frame pair vs ours: time and correspondence error
-   (skipped with a note when probreg is not installed: ``pip install probreg``).
+Three tables, each with its reference measured in the same run:
 
-Usage::
+1. The GMM E-step per iteration at M = 2000, N = 10000 (sigma = 1 cm): the Rust kernel, dense
+   and truncated, float64 and float32, on 1 and 2 threads (each in a subprocess with
+   ``RAYON_NUM_THREADS`` set), against a dense numpy E-step.
+2. A 100-frame synthetic human registered with the default configuration and with the paper's
+   (:func:`benchmarks.sets.paper_config`): milliseconds per frame, the distance of the
+   registered points to the nearest observed point (mean, and the worst frame's 90th
+   percentile) and the correspondence error against the exact surface motion, all in cm.
+3. probreg's non-rigid CPD (Myronenko and Song) on one frame pair against pointrig's
+   registration of the same pair: seconds and correspondence error (skipped with a note when
+   probreg is not installed: ``pip install probreg``).
 
-    PYTHONPATH=python python benchmarks/bench_registration.py [--frames 100] [--skip-seq]
+Run::
+
+    python -m benchmarks.bench_registration [--frames 100] [--skip-seq]
 """
 
 from __future__ import annotations
@@ -23,9 +29,42 @@ import time
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial import cKDTree
+
+from benchmarks.sets import paper_config
+from pointrig.config import RegistrationConfig
+from pointrig.registration import RegistrationResult, register_sequence
+from pointrig.sequence import PointSequence
+from pointrig.synth import synthesize
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
+
+
+def rest_frame_index(result: RegistrationResult) -> int:
+    """The frame whose surface gave ``result``'s rest points."""
+    return int(result.params["rest_frame_index"])
+
+
+def nearest_observed(points: np.ndarray, frames: list[np.ndarray]) -> np.ndarray:
+    """``(F, M)`` distance (metres) of each registered point of ``points (F, M, 3)`` to the
+    nearest observed point of its frame (``frames[t]``: ``(N_t, 3)``)."""
+    return np.stack([cKDTree(x).query(y)[0] for y, x in zip(points, frames)])
+
+
+def correspondence_error(rest_points: np.ndarray, points: np.ndarray, surface: np.ndarray,
+                         rest_frame: int, max_offset: float = 0.01) -> np.ndarray:
+    """``(F, M')`` displacement error (metres) against exact surface correspondences.
+
+    Each rest point ``(M, 3)`` is tied to its nearest ground-truth surface sample of the rest
+    frame ``surface[rest_frame]`` (only points within ``max_offset`` of one); the error at
+    frame t is ``|(Y^t_m - Y^rest_m) - (S^t_s - S^rest_s)|`` with ``Y = points (F, M, 3)`` and
+    ``S = surface (F, S, 3)``, which removes the fixed sampling offset.
+    """
+    d, s = cKDTree(surface[rest_frame]).query(rest_points)
+    ok = d < max_offset
+    dy = points[:, ok] - points[rest_frame][ok]
+    ds = surface[:, s[ok]] - surface[rest_frame][s[ok]]
+    return np.linalg.norm(dy - ds, axis=2)
 
 
 def _surface(n: int, rng: np.random.Generator) -> np.ndarray:
@@ -61,7 +100,11 @@ def estep_child() -> None:
     print(json.dumps(out))
 
 
-def numpy_estep(y: np.ndarray, x: np.ndarray, s2: float, omega: float):
+def numpy_estep(y: np.ndarray, x: np.ndarray, s2: float, omega: float
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Dense E-step in numpy (the reference): template ``y (M, 3)``, data ``x (N, 3)``,
+    sigma^2 ``s2`` (m^2), outlier weight ``omega``; returns the posterior sums over the data
+    ``(M,)`` and over the template ``(N,)``, and ``P @ x (M, 3)``."""
     m, n = len(y), len(x)
     d2 = (y * y).sum(1)[:, None] + (x * x).sum(1)[None] - 2 * y @ x.T
     e = np.exp(-d2 / (2 * s2))
@@ -71,6 +114,7 @@ def numpy_estep(y: np.ndarray, x: np.ndarray, s2: float, omega: float):
 
 
 def bench_estep() -> None:
+    """Table 1: the Rust E-step on 1 and 2 threads against the numpy one."""
     rng = np.random.default_rng(0)
     y = _surface(2000, rng)
     x = _surface(10000, rng)
@@ -84,9 +128,9 @@ def bench_estep() -> None:
     rows = {}
     for threads in ("1", "2"):
         env = dict(os.environ, RAYON_NUM_THREADS=threads)
-        res = subprocess.run(
-            [sys.executable, __file__, "--estep-child"], env=env, capture_output=True, text=True, check=True
-        )
+        res = subprocess.run([sys.executable, "-m", "benchmarks.bench_registration",
+                              "--estep-child"], env=env, cwd=ROOT, capture_output=True,
+                             text=True, check=True)
         rows[threads] = json.loads(res.stdout.strip().splitlines()[-1])
     print("\nE-step per iteration, M = 2000, N = 10000, sigma = 1 cm (median ms)")
     print(f"{'variant':24s} {'1 thread':>10s} {'2 threads':>10s} {'numpy/2thr':>11s}")
@@ -97,22 +141,15 @@ def bench_estep() -> None:
 
 
 def bench_sequence(n_frames: int) -> None:
-    from registration_helpers import correspondence_error, nearest_observed
-
-    from pointrig.config import RegistrationConfig
-    from pointrig.registration import register_sequence
-    from pointrig.synth import synthesize
-
+    """Table 2: the default and the paper's registration of one synthetic human."""
     s = synthesize("human", n_frames, seed=3, surface_points=8000)
     seq = s.to_point_sequence()
     print(f"\nSequence: human, {n_frames} frames, median {int(np.median(seq.counts))} points/frame")
     print(f"{'config':10s} {'ms/frame (median)':>18s} {'total s':>8s} {'NO mean cm':>11s} "
           f"{'NO p90 worst cm':>16s} {'corr cm':>8s}")
     clean = [f[lab >= 0] for f, lab in zip(s.frames, s.point_labels)]
-    # "default" registers from three candidate rest frames (rest_frame = "fit", session 50);
-    # "visible" is one registration from the first of them
-    configs = {"default": RegistrationConfig(), "visible": RegistrationConfig(rest_frame="visible"),
-               "paper": RegistrationConfig.paper()}
+    configs = {"default": RegistrationConfig(), "paper": paper_config().registration}
+    rows = {}
     for name, cfg in configs.items():
         times: list[float] = []
         last = [time.perf_counter()]
@@ -126,57 +163,60 @@ def bench_sequence(n_frames: int) -> None:
         res = register_sequence(seq, cfg, progress=tick)
         total = time.perf_counter() - t0
         no = nearest_observed(res.points, clean)
-        ce = correspondence_error(res.rest_points, res.points, s.surface)
-        print(f"{name:10s} {1e3 * np.median(times[1:]):18.1f} {total:8.1f} {100 * no.mean():11.2f} "
-              f"{100 * np.percentile(no, 90, axis=1).max():16.2f} {100 * ce.mean():8.2f}")
+        ce = correspondence_error(res.rest_points, res.points, s.surface, rest_frame_index(res))
+        rows[name] = (1e3 * np.median(times[1:]), total, 100 * no.mean(),
+                      100 * np.percentile(no, 90, axis=1).max(), 100 * ce.mean())
+        print(f"{name:10s} {rows[name][0]:18.1f} {rows[name][1]:8.1f} {rows[name][2]:11.2f} "
+              f"{rows[name][3]:16.2f} {rows[name][4]:8.2f}")
+    r = np.array(rows["paper"]) / np.array(rows["default"])
+    print(f"{'paper/def.':10s} {r[0]:17.2f}x {r[1]:7.2f}x {r[2]:10.2f}x {r[3]:15.2f}x {r[4]:7.2f}x")
 
 
 def bench_cpd() -> None:
+    """Table 3: probreg's non-rigid CPD against pointrig on one frame pair."""
     try:
         from probreg import cpd
     except ImportError:
         print("\nprobreg not installed (pip install probreg): CPD comparison skipped")
         return
-    from registration_helpers import correspondence_error
-
-    from pointrig.config import RegistrationConfig
-    from pointrig.registration import register_sequence
-    from pointrig.sequence import PointSequence
-    from pointrig.synth import synthesize
-
     s = synthesize("human", 2, seed=4, surface_points=8000)
     seq = PointSequence(s.frames[:2])
     t0 = time.perf_counter()
-    ours = register_sequence(seq, RegistrationConfig())
+    # both methods move frame 0's surface onto frame 1
+    ours = register_sequence(seq, RegistrationConfig(rest_frame=0))
     t_ours = time.perf_counter() - t0
-    e_ours = correspondence_error(ours.rest_points, ours.points, s.surface[:2])[1].mean()
+    e_ours = correspondence_error(ours.rest_points, ours.points, s.surface[:2],
+                                  rest_frame_index(ours))[1].mean()
     src = ours.rest_points
     t0 = time.perf_counter()
     # CPD beta = 2 (Myronenko and Song) is probreg beta = 4: exp(-d^2 / (2 beta)).
     tf = cpd.registration_cpd(src, s.frames[1], tf_type_name="nonrigid", beta=4.0, lmd=2.0, w=0.01)
     t_cpd = time.perf_counter() - t0
     moved = np.stack([src, np.asarray(tf.transformation.transform(src))])
-    e_cpd = correspondence_error(src, moved, s.surface[:2])[1].mean()
-    print("\nOne frame pair (rest -> frame 1): time and mean correspondence error")
+    e_cpd = correspondence_error(src, moved, s.surface[:2], 0)[1].mean()
+    print("\nOne frame pair (frame 0's rest surface -> frame 1): time and mean correspondence "
+          "error")
     print(f"{'method':22s} {'s':>7s} {'corr cm':>8s}")
     print(f"{'pointrig (2 frames)':22s} {t_ours:7.2f} {100 * e_ours:8.2f}")
     print(f"{'probreg CPD nonrigid':22s} {t_cpd:7.2f} {100 * e_cpd:8.2f}")
+    print(f"{'CPD / pointrig':22s} {t_cpd / t_ours:6.1f}x {e_cpd / e_ours:7.1f}x")
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--estep-child", action="store_true")
-    ap.add_argument("--frames", type=int, default=100)
-    ap.add_argument("--skip-seq", action="store_true")
-    a = ap.parse_args()
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--estep-child", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--frames", type=int, default=100, help="frames of the sequence (table 2)")
+    ap.add_argument("--skip-seq", action="store_true", help="leave out table 2")
+    a = ap.parse_args(argv)
     if a.estep_child:
         estep_child()
-        return
+        return 0
     bench_estep()
     if not a.skip_seq:
         bench_sequence(a.frames)
     bench_cpd()
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

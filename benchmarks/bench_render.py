@@ -4,12 +4,13 @@ Compares the vectorised z-buffer rasteriser (pointrig.synth.render.rasterize) wi
 naive reference (a Python loop over triangles, same maths) measured in the same run, and
 times a whole synthetic frame (skinning + render + Kinect noise + back-projection).
 
-    PYTHONPATH=python python benchmarks/bench_render.py
+    python -m benchmarks.bench_render
 """
 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 
 import numpy as np
 
@@ -17,7 +18,8 @@ from pointrig.synth import Camera, NoiseConfig, make_figure, synthesize
 from pointrig.synth.render import rasterize, rasterize_naive
 
 
-def best_of(fn, repeat: int) -> float:
+def best_of(fn: Callable[[], object], repeat: int) -> float:
+    """Fastest of ``repeat`` calls of ``fn``, seconds."""
     times = []
     for _ in range(repeat):
         t0 = time.perf_counter()

@@ -1,19 +1,19 @@
 """Run time of the whole pipeline against its serial form, measured in the same run.
 
-The reference is the pipeline as it ran before session 35: a tracked frame's two hypotheses
-fitted one after the other (``pointrig.joints._TRACK_WORKERS = 1``), the refinement's frames
-registered one after the other (``pointrig.registration._REFINE_WORKERS = 1``), step 1's
-forward and backward chains one after the other (``pointrig.registration._CHAIN_WORKERS =
-1``), step 2's ensemble seeds one after the other (``pointrig.structure._ENSEMBLE_WORKERS =
-1``) and the chamfer misfit searching every nearest neighbour to the end (no
-``distance_upper_bound``) on scipy k-d trees; and, as before session 66's Rust grid
-(``rust/core/nearest.rs``), farthest-point sampling as a numpy loop, the sparse-point filter,
-step 1's start sigma^2 and the tracker's start tau on scipy k-d trees. Both forms do the same arithmetic, so the
-benchmark also checks that the skeletons agree. Prints per
-sequence the seconds of each stage for both and their ratio::
+The reference (serial) form runs the same arithmetic one thing at a time and without the Rust
+nearest-neighbour grid (``rust/core/nearest.rs``): a tracked frame's two hypotheses fitted one
+after the other (``pointrig.joints._TRACK_WORKERS = 1``), the refinement's frames registered
+one after the other (``pointrig.registration._REFINE_WORKERS = 1``), step 1's forward and
+backward chains one after the other (``pointrig.registration._CHAIN_WORKERS = 1``), step 2's
+ensemble seeds one after the other (``pointrig.structure._ENSEMBLE_WORKERS = 1``), the chamfer
+misfit on scipy k-d trees searching every nearest neighbour to the end, farthest-point sampling
+as a numpy loop, and the sparse-point filter and the nearest distances (step 1's start sigma^2,
+the tracker's start tau) on scipy k-d trees. Both forms give the same skeleton, which the
+benchmark checks. Prints per sequence the seconds of each stage for both, the largest
+difference between their joints, and the ratio serial / default::
 
-    PYTHONPATH=python python benchmarks/bench_speed.py                  # 100-frame human
-    PYTHONPATH=python python benchmarks/bench_speed.py --only human,girl_run --repeats 2
+    python -m benchmarks.bench_speed                              # the 100-frame human
+    python -m benchmarks.bench_speed --only human,girl_run,hand --repeats 2
 
 Each form runs ``--repeats`` times, alternating, and the fastest run of each is reported.
 """
@@ -21,26 +21,21 @@ Each form runs ``--repeats`` times, alternating, and the fastest run of each is 
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager, nullcontext
-from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from bench_refine import selected, suite  # noqa: E402
-
-import pointrig.joints as joints_mod  # noqa: E402
-import pointrig.preprocess as pre_mod  # noqa: E402
-import pointrig.registration as reg_mod  # noqa: E402
-import pointrig.structure as structure_mod  # noqa: E402
-from pointrig.config import PipelineConfig  # noqa: E402
-from pointrig.pipeline import extract  # noqa: E402
+import pointrig.joints as joints_mod
+import pointrig.preprocess as pre_mod
+import pointrig.registration as reg_mod
+import pointrig.structure as structure_mod
+from benchmarks.sets import add_sequence_options, chosen, suite
+from pointrig.config import PipelineConfig
+from pointrig.pipeline import extract
+from pointrig.sequence import PointSequence
 
 STAGES = ("clean-up", "registration", "structure", "joints", "refinement")
 #: the thread counts the serial form sets to 1
@@ -56,9 +51,9 @@ PATCHED = WORKERS + FUNCTIONS
 
 
 def chamfer_full_search(template: np.ndarray, data: np.ndarray, trunc: float) -> float:
-    """:func:`pointrig.preprocess.chamfer_misfit` as before session 35: scipy k-d trees
-    (session 66 moved it to a Rust grid), every nearest-neighbour search run to the end and
-    the distances capped afterwards (metres)."""
+    """Reference form of :func:`pointrig.preprocess.chamfer_misfit` (metres) between
+    ``template (M, 3)`` and ``data (N, 3)``: scipy k-d trees, every nearest-neighbour search
+    run to the end and the distances capped at ``trunc`` afterwards."""
     tree = cKDTree(data)
     d_td = np.minimum(tree.query(template)[0], trunc).mean()
     d_dt = np.minimum(cKDTree(template).query(data)[0], trunc).mean()
@@ -66,8 +61,8 @@ def chamfer_full_search(template: np.ndarray, data: np.ndarray, trunc: float) ->
 
 
 def fps_numpy(points: np.ndarray, n: int, seed: int = 0) -> np.ndarray:
-    """:func:`pointrig.preprocess.farthest_point_sampling` as before session 66: the numpy
-    loop, ``(min(n, m),)`` indices of ``points (m, 3)``."""
+    """Reference form of :func:`pointrig.preprocess.farthest_point_sampling`, a numpy loop:
+    ``(min(n, m),)`` indices of ``points (m, 3)``."""
     m = len(points)
     if n >= m:
         return np.arange(m)
@@ -81,8 +76,8 @@ def fps_numpy(points: np.ndarray, n: int, seed: int = 0) -> np.ndarray:
 
 
 def remove_sparse_kd(points: np.ndarray, k: int = 10, ratio: float = 4.0) -> np.ndarray:
-    """:func:`pointrig.preprocess.remove_sparse_points` as before session 66 (scipy k-d
-    tree): the points of ``(N, 3)`` whose ``k``-th neighbour is within ``ratio`` medians."""
+    """Reference form of :func:`pointrig.preprocess.remove_sparse_points` on a scipy k-d
+    tree: the points of ``(N, 3)`` whose ``k``-th neighbour is within ``ratio`` medians."""
     if ratio <= 0 or len(points) <= k + 1:
         return points.copy()
     dk = cKDTree(points).query(points, k=k + 1, workers=-1)[0][:, -1]
@@ -116,7 +111,7 @@ def serial() -> Iterator[None]:
             setattr(mod, name, value)
 
 
-def timed(seq, cfg: PipelineConfig) -> tuple[dict[str, float], np.ndarray]:
+def timed(seq: PointSequence, cfg: PipelineConfig) -> tuple[dict[str, float], np.ndarray]:
     """Stage seconds (plus ``total``) and the ``(F, J, 3)`` joint positions of one run."""
     t0 = time.perf_counter()
     out = extract(seq, cfg, None, pictures=False)
@@ -124,20 +119,19 @@ def timed(seq, cfg: PipelineConfig) -> tuple[dict[str, float], np.ndarray]:
     return secs, np.asarray(out.skeleton.joint_positions)
 
 
-def main(argv: list[str]) -> int:
+def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--only", default="human", help="comma-separated sequence names")
-    ap.add_argument("--frames", type=int, default=100)
+    add_sequence_options(ap, only="human")
     ap.add_argument("--repeats", type=int, default=1)
     a = ap.parse_args(argv)
     if a.repeats < 1:
         ap.error("--repeats must be >= 1")
-    only = selected(ap, a.only)
+    sequences, only = chosen(ap, a)
     cfg = PipelineConfig()
     cols = (*STAGES, "total")
     print(f"{'sequence':<16} {'form':<10}" + "".join(f"{c:>14}" for c in cols)
           + f"{'joints differ (m)':>19}")
-    for name, syn in suite(a.frames, only):
+    for name, syn in suite(a.frames, only, sequences):
         seq = syn.to_point_sequence()
         best: dict[str, dict[str, float]] = {}
         poses: dict[str, np.ndarray] = {}
@@ -162,4 +156,4 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main(sys.argv[1:]))
+    raise SystemExit(main())

@@ -1,18 +1,18 @@
-"""Run the benchmarks behind the README's performance table, one after the other.
+"""Run every benchmark of ``benchmarks/BENCHMARKS.md``, one after the other.
 
-Each benchmark prints its own table (with a reference measured in the same run); this script
-only runs them in sequence with the project's paths set and reports which failed. Figures are
-recorded by hand in ``benchmarks/RESULTS.md`` and the README. Run (``make bench``)::
+Each benchmark prints its own table with a reference measured in the same run; this script
+runs them in sequence from the repository root (``python -m benchmarks.NAME``) and reports
+which failed::
 
-    .venv/bin/python benchmarks/run_all.py [--quick]
+    python -m benchmarks.run_all [--quick]
 
-``--quick`` shortens the sequences (40 frames instead of 100) for a smoke run.
+``--quick`` is a smoke run: 20-frame sequences, the suite on two sequences, the smaller sizes.
+The whole run takes about 25 minutes on two idle cores, most of it the accuracy suite.
 """
 
 from __future__ import annotations
 
 import argparse
-import os
 import subprocess
 import sys
 import time
@@ -21,33 +21,38 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
+def runs(quick: bool) -> list[list[str]]:
+    """The benchmark module names with their arguments, full or ``quick``."""
+    if quick:
+        return [
+            ["bench_kernels", "--frames", "20"],
+            ["bench_registration", "--frames", "20"],
+            ["bench_nearest", "--sizes", "10000", "--repeat", "1"],
+            ["bench_render"],
+            ["bench_background", "--frames", "2"],
+            ["bench_speed", "--frames", "20"],
+            ["bench_suite", "--frames", "20", "--only", "human,hand"],
+        ]
+    return [
+        ["bench_kernels"],
+        ["bench_registration"],
+        ["bench_nearest"],
+        ["bench_render"],
+        ["bench_background"],
+        ["bench_speed"],
+        ["bench_suite"],
+    ]
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="40-frame sequences (smoke run)")
+    ap.add_argument("--quick", action="store_true", help="short sequences (smoke run)")
     args = ap.parse_args(argv)
-    frames = "40" if args.quick else "100"
-    runs = [
-        ["bench_registration.py", "--frames", frames],
-        ["bench_structure.py"],
-        ["bench_structure_suite.py", "--timing"],
-        ["bench_render.py"],
-        ["bench_nearest.py"],
-        ["bench_refine.py", "--frames", frames],
-        ["bench_joint_oracle.py", "--frames", frames],
-        ["bench_bone_spin.py", "--frames", frames],
-        ["bench_registration_twist.py", "--frames", frames,
-         '{"joints": {"bone_twist": "fit"}}', "{}"],
-    ]
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(
-        [str(ROOT / "python"), str(ROOT / "tests"), env.get("PYTHONPATH", "")]
-    ).rstrip(os.pathsep)
     failed = []
-    for run in runs:
+    for run in runs(args.quick):
         print(f"\n=== {' '.join(run)}", flush=True)
         t0 = time.perf_counter()
-        rc = subprocess.call([sys.executable, str(ROOT / "benchmarks" / run[0]), *run[1:]],
-                             env=env)
+        rc = subprocess.call([sys.executable, "-m", f"benchmarks.{run[0]}", *run[1:]], cwd=ROOT)
         print(f"=== {run[0]}: exit {rc}, {time.perf_counter() - t0:.0f} s", flush=True)
         if rc != 0:
             failed.append(run[0])

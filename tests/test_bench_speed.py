@@ -2,19 +2,15 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from benchmarks import bench_speed
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-
-import bench_speed  # noqa: E402
-
-import pointrig.joints as joints_mod  # noqa: E402
-import pointrig.registration as reg_mod  # noqa: E402
-from pointrig.preprocess import (  # noqa: E402
+import pointrig.joints as joints_mod
+import pointrig.registration as reg_mod
+from pointrig.preprocess import (
     chamfer_misfit,
     farthest_point_sampling,
     nearest_distances,
@@ -62,9 +58,9 @@ def test_serial_form_sets_and_restores_the_workers() -> None:
 
 
 def test_reference_forms_equal_the_pipeline_s() -> None:
-    """Session 66's reference forms (numpy farthest-point loop, scipy k-d tree sparse filter
-    and nearest distances) give what the pipeline's Rust grid gives, so the serial form does
-    the same arithmetic."""
+    """The reference forms (numpy farthest-point loop, scipy k-d tree sparse filter and nearest
+    distances) give what the pipeline's Rust grid gives, so the serial form does the same
+    arithmetic."""
     rng = np.random.default_rng(8)
     pts = rng.normal(size=(3000, 3)) * [0.3, 0.8, 0.1]
     pts[:40] = rng.uniform(-3, 3, (40, 3))

@@ -1,20 +1,14 @@
-"""The swing-twist split (pointrig.kinematics.swing_twist) against constructed rotations, and
-benchmarks/bench_registration_twist.py's per-bone twist against a known registration error."""
+"""pointrig.kinematics' twist of a bone about its own axis: the swing-twist split against
+constructed rotations, and ``minimal_twist`` (the default ``[joints] bone_twist``) on a chain
+with known rolls."""
 
 from __future__ import annotations
-
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from pointrig.kinematics import swing_twist
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-
-from bench_registration_twist import bone_errors, relative_turns  # noqa: E402
+from pointrig.kinematics import joint_trajectories, minimal_twist, swing_twist
 
 
 def _perpendicular(a: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -49,46 +43,10 @@ def test_swing_twist_of_pure_rotations() -> None:
     np.testing.assert_allclose(sw, Rotation.from_rotvec([0.7, 0, 0]).as_matrix(), atol=1e-12)
 
 
-def test_bone_errors_sees_a_registration_twisted_about_the_limb() -> None:
-    """Two rigid 'limbs' (cylinders along x and along y) move; the registration follows the
-    first exactly and turns the second by 25 deg too far about its own axis: the error of the
-    first is zero, the second's is 25 deg and all twist."""
-    rng = np.random.default_rng(3)
-    F, n = 6, 300
-    u = rng.uniform(0, 2 * np.pi, n)
-    h = rng.uniform(0, 0.4, n)
-    cyl_x = np.c_[h, 0.05 * np.cos(u), 0.05 * np.sin(u)]
-    cyl_y = np.c_[0.05 * np.cos(u), h, 0.05 * np.sin(u)] + [1.0, 0, 0]
-    rest = np.vstack([cyl_x, cyl_y])
-    labels = np.repeat([0, 1], n)
-    surface = np.empty((F, 2 * n, 3))
-    points = np.empty((F, 2 * n, 3))
-    extra = 25.0
-    for t in range(F):
-        # frame 0 is the rest frame
-        Rt = Rotation.from_rotvec(rng.normal(size=3) * 0.4 * (t > 0)).as_matrix()
-        tt = rng.normal(size=3) * 0.1 * (t > 0)
-        surface[t] = rest @ Rt.T + tt
-        points[t, :n] = surface[t, :n]
-        # the second limb turned about its own axis (through its centre) before the motion
-        c = cyl_y.mean(0)
-        tw = Rotation.from_rotvec(np.radians(extra if t else 0.0) * np.array([0, 1, 0]))
-        points[t, n:] = (tw.apply(cyl_y - c) + c) @ Rt.T + tt
-    errs = bone_errors(rest, points, 0, surface, labels, max_offset=1e-6, min_points=10)
-    ang0, tw0 = errs[0]
-    ang1, tw1 = errs[1]
-    np.testing.assert_allclose(ang0, 0.0, atol=1e-4)
-    np.testing.assert_allclose(ang1[1:], extra, atol=1e-4)
-    # the axis is the samples' principal direction, a little off the cylinder's own
-    np.testing.assert_allclose(np.abs(tw1[1:]), extra, atol=0.1)
-
-
 def _chain(F: int, seed: int):
     """A three-bone chain (a torso block, an upper arm and a forearm along x) moving with
     random swings and random rolls of each limb about its own axis; returns rest points,
     labels, joints, parents and the fitted-like transforms (rolls included)."""
-    from pointrig.kinematics import joint_trajectories  # noqa: F401
-
     rng = np.random.default_rng(seed)
     torso = rng.uniform([-0.2, -0.3, -0.1], [0.0, 0.3, 0.1], (300, 3))
     u = rng.uniform(0, 2 * np.pi, 400)
@@ -119,8 +77,6 @@ def test_minimal_twist_keeps_the_joints_and_removes_the_roll(seed: int) -> None:
     """Oracle: the joint trajectories are unchanged (to rounding), each limb's relative
     rotation to its parent has no twist about its axis left, and its axis points where the
     fit put it; the root keeps its transform."""
-    from pointrig.kinematics import joint_trajectories, minimal_twist
-
     rest, labels, joints, parent, R, T = _chain(12, seed)
     R2, T2 = minimal_twist(R, T, joints, parent, rest, labels, min_elongation=2.0)
     np.testing.assert_allclose(joint_trajectories(joints, R2, T2, parent),
@@ -145,8 +101,6 @@ def test_minimal_twist_keeps_the_joints_and_removes_the_roll(seed: int) -> None:
 def test_minimal_twist_leaves_compact_bones_alone() -> None:
     """A bone whose points are not elongated along its axis (spread ratio below the gate)
     keeps its fitted roll: its shape, not the view, decides its twist."""
-    from pointrig.kinematics import minimal_twist
-
     rest, labels, joints, parent, R, T = _chain(5, 2)
     R2, T2 = minimal_twist(R, T, joints, parent, rest, labels, min_elongation=50.0)
     np.testing.assert_array_equal(R2, R)
@@ -157,8 +111,6 @@ def test_minimal_twist_roll_gate() -> None:
     """``min_roll_deg``: limbs whose fitted roll against the parent stays below the gate at the
     90th percentile keep it; above it they lose it, as with no gate. The chain's rolls are
     uniform in +-2 rad, so their 90th percentile is about 103 deg (oracle: computed here)."""
-    from pointrig.kinematics import minimal_twist
-
     rest, labels, joints, parent, R, T = _chain(40, 4)
     x = np.array([1.0, 0.0, 0.0])
     p90 = max(np.percentile([abs(np.degrees(swing_twist(R[t, 0].T @ R[t, 1], x)[1]))
@@ -169,37 +121,3 @@ def test_minimal_twist_roll_gate() -> None:
     R_all, _ = minimal_twist(R, T, joints, parent, rest, labels)
     np.testing.assert_allclose(R_lo, R_all, atol=1e-12)
     assert np.abs(R_lo[:, 1] - R[:, 1]).max() > 0.1
-
-
-def test_relative_turns_splits_a_known_error_along_and_across_the_true_turn() -> None:
-    """Oracle: the registration's relative rotation is built as exp(k r + e), with r the true
-    relative rotation vector and e a vector perpendicular to it of length a |r|; the gain is
-    k and the axis error a. A magnitude ratio |k r + e| / |r| = sqrt(k^2 + a^2) would read
-    0.8 and 0.6 as a 1.0 "right" turn. Frames below the turn threshold are left out."""
-    rng = np.random.default_rng(7)
-    F = 40
-    k, a = 0.8, 0.6
-    R_true = np.empty((F, 2, 3, 3))
-    R_reg = np.empty((F, 2, 3, 3))
-    small = np.zeros(F, bool)
-    small[:5] = True
-    for t in range(F):
-        parent = Rotation.from_rotvec(rng.normal(size=3))
-        axis = rng.normal(size=3)
-        axis /= np.linalg.norm(axis)
-        angle = np.radians(2.0) if small[t] else rng.uniform(0.2, 1.2)
-        r = angle * axis
-        # the registration misses the small turns entirely
-        v = np.zeros(3) if small[t] else k * r + a * angle * _perpendicular(axis, rng)
-        R_true[t, 0] = R_reg[t, 0] = parent.as_matrix()
-        R_true[t, 1] = (parent * Rotation.from_rotvec(r)).as_matrix()
-        R_reg[t, 1] = (parent * Rotation.from_rotvec(v)).as_matrix()
-    out = relative_turns(R_reg, R_true, [(0, 1)], min_turn_deg=5.0)
-    gain, across, n = out[(0, 1)]
-    assert n == F - 5
-    assert gain == pytest.approx(k, abs=1e-9)
-    assert across == pytest.approx(a, abs=1e-9)
-    # the exact registration: gain 1, no axis error; a pair that never turns is left out
-    exact = relative_turns(R_true, R_true, [(0, 1), (0, 0)])
-    assert exact[(0, 1)][:2] == pytest.approx((1.0, 0.0), abs=1e-9)
-    assert (0, 0) not in exact
