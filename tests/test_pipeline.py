@@ -200,7 +200,7 @@ def test_rest_frame_option_sets_the_rest_pose_and_is_recorded(tmp_path, capsys):
 
 
 def test_max_joints_caps_the_skeleton_and_is_recorded(demo_run, tmp_path, capsys):
-    """``--max-joints N`` (``[structure] max_joints``, docs/structure.md "Session 39"): at most
+    """``--max-joints N`` (``[structure] max_joints``): at most
     N joints, the cap recorded in skeleton.json, the demo's joints still found and fewer
     extra ones than the uncapped run (ground truth as the oracle); a bad value is one error
     line before any step, with nothing written."""
@@ -227,7 +227,7 @@ def test_max_joints_caps_the_skeleton_and_is_recorded(demo_run, tmp_path, capsys
 
 
 def test_bone_twist_changes_rolls_only(demo_run, tmp_path):
-    """``[joints] bone_twist`` (docs/joints.md "Session 45") turns limbs about their own axes
+    """``[joints] bone_twist`` turns limbs about their own axes
     only: the default ("minimal", roll gate 60 deg) and "fit" and "minimal" without the gate
     give the same joint trajectories (the oracle: the fitted run), the ungated run's bone
     rotations differ from the fitted ones, and each choice is recorded."""

@@ -134,17 +134,15 @@ class PreprocessConfig:
     frame_stop: int | None = None  # frame after the last one read (None = to the end)
     frame_stride: int = 1  # read every frame_stride-th frame
     min_points: int = 50  # fewer points left in a frame is an error
-    # largest span of a frame (diagonal of the box between the 0.5th and 99.5th percentiles
-    # of each coordinate), metres: beyond it the input is taken not to be in metres and is an
-    # error naming the scale to use (pointrig.sequence.check_units); 0 = off
+    # largest robust span of a frame, metres: more means the input is not in metres, an error
+    # (pointrig.sequence.check_units); 0 = off
     max_extent: float = 30.0
-    # "auto": remove the static floor / wall planes of the sequence before step 1
-    # (pointrig.preprocess.remove_background); "keep": the points as read (§3 crops by hand)
+    # "auto": remove static floor / wall planes (pointrig.preprocess.remove_background);
+    # "keep": the points as read (§3 crops by hand)
     background: str = "auto"
     background_threshold: float = 0.03  # inlier distance of the plane search, metres
-    # drop points whose sparse_neighbors-th neighbour lies farther than sparse_ratio x the
-    # frame's median of that distance (flying pixels, outliers), every frame, before step 1
-    # (pointrig.preprocess.remove_sparse_frames); sparse_ratio 0 = off
+    # every frame: drop points whose sparse_neighbors-th neighbour is farther than sparse_ratio
+    # x the frame's median of that distance (pointrig.preprocess.remove_sparse_frames; 0 = off)
     sparse_neighbors: int = 10
     sparse_ratio: float = 4.0
 
@@ -189,25 +187,19 @@ class RegistrationConfig:
     configuration. Lengths are metres (sigma^2 in m^2).
     """
 
-    # rest frame (§4 registers from the first frame; "other frames can also be chosen"): a
-    # frame index, or "fit": up to rest_candidates frames of near-largest surface cover in the
-    # middle half of the sequence (the one nearest the middle first) each give a registration
-    # of the whole sequence, and the one whose points explain the frames best (mean symmetric
-    # chamfer, pointrig.registration.sequence_misfit) is kept if it beats the first by more
-    # than rest_fit_margin (a fraction)
+    # rest frame (§4: the first, "other frames can also be chosen"): an index, or "fit": the
+    # best of rest_candidates registrations (pointrig.registration.register_sequence)
     rest_frame: int | str = "fit"
-    # frames whose surface cover (pointrig.preprocess.surface_cover) is within this fraction
-    # of the middle half's largest are candidates; 0 = only the largest
+    # "fit" candidates: surface cover within this fraction of the middle half's largest
     rest_cover_tolerance: float = 0.03
-    rest_candidates: int = 3  # 1 = the candidate nearest the middle, no comparison
-    rest_fit_margin: float = 0.05
+    rest_candidates: int = 3  # most "fit" candidates (1 = the most complete frame, no choice)
+    rest_fit_margin: float = 0.05  # fraction by which another candidate must fit better
     n_rest_points: int = 2000  # M, points of the rest-pose point set surface
     n_nodes: int = 200  # deformation-graph nodes n_j (Eq. 2), farthest-point sampled
     k_point_nodes: int = 4  # nodes N(y_m) driving each point (Eq. 2)
     k_node_neighbors: int = 6  # node neighbours of each node in E_smooth (Eq. 6), k-NN
-    # node edges whose path over the rest points' neighbour graph is longer than this x their
-    # straight length are dropped (parts that only touch in the rest pose are not tied);
-    # edges between fragments the graph does not connect are kept. 0 = k-NN only (§4)
+    # node edges whose path over the rest points is longer than this x their straight length
+    # are dropped (parts that only touch are not tied; 0 = plain k-NN, §4)
     node_geodesic_ratio: float = 2.0
     omega: float = 0.01  # omega, outlier weight of the GMM (Eq. 1), Table 1
     beta_smooth: float = 1e5  # beta_smooth, E_smooth weight (Eq. 8a), Table 1 ("fixed" mode)
@@ -217,51 +209,41 @@ class RegistrationConfig:
     tolerance: float = 1e-5  # relative change of Eq. 8a that stops the EM
     seed: int = 0  # seed of the farthest-point sampling and the rest-frame candidates
     solver: str = "gauss_newton"  # M-step: "gauss_newton" (all nodes jointly) | "sweeps" (§4.3)
-    # "relative": beta_smooth = beta_smooth_rel x N_p / (sigma^2 x edges) each iteration (the
-    # smoothness term weighed against the data term); "fixed": beta_smooth as given (§4)
+    # "relative": beta_smooth = beta_smooth_rel x N_p / (sigma^2 x edges) every iteration;
+    # "fixed": beta_smooth as given (§4)
     beta_smooth_mode: str = "relative"
     beta_smooth_rel: float = 0.1  # smooth weight per edge over data weight per edge
-    # each frame's starting sigma^2: "data" (CPD's mean squared distance between the predicted
-    # template and the frame, within [sigma2_init, sigma2_start_max]) | "fixed" (sigma2_init)
+    # each frame's starting sigma^2: "data" (CPD's, clipped to [sigma2_init, sigma2_start_max])
+    # | "fixed" (sigma2_init, §7.2)
     sigma2_start: str = "data"
     sigma2_start_max: float = 0.01  # largest data start, m^2
     sigma2_min: float = 1e-5  # floor of sigma^2 (Eq. 12), m^2
-    # coarse-to-fine: sigma^2 at most sigma2_anneal x its previous value until sigma2_init
-    # (1 = plain Eq. 12)
-    sigma2_anneal: float = 0.5
+    sigma2_anneal: float = 0.5  # sigma^2 at most this x the last until sigma2_init (1 = Eq. 12)
     rigid_iterations: int = 2  # leading EM iterations that move the template rigidly (Kabsch)
     predict_velocity: float = 1.0  # constant-velocity prediction of the nodes (0 = previous)
-    # a frame starts from the previous pose instead of the prediction when the previous pose's
-    # symmetric chamfer misfit to the frame is below predict_check x the prediction's
-    # (0 = always predict)
+    # start from the previous pose when its chamfer misfit to the frame is below this x the
+    # prediction's (0 = always predict)
     predict_check: float = 1.0
     cutoff: float = 3.5  # truncated E-step: pairs beyond cutoff x sigma ignored (0 = dense)
     gn_damping: float = 1e-4  # Levenberg damping of the Gauss-Newton step (x diagonal)
     cg_tolerance: float = 1e-6  # relative residual of its conjugate-gradient solve
     cg_max_iterations: int = 300  # iteration cap of that solve
-    # coarse E-step on voxel centroids of side subsample x sigma (count-weighted) while that
+    # coarse E-step on count-weighted voxel centroids of side subsample x sigma while that
     # halves the data (0 = full data)
     subsample: float = 1.0
-    # normal agreement: each posterior carries exp(normal_kappa (n_data . n_template - 1)),
-    # normals fitted to the points within normal_radius x the rest-point spacing (0 = off)
+    # normal agreement: posteriors x exp(normal_kappa (n_data . n_template - 1)) (0 = off)
     normal_kappa: float = 1.0
-    normal_radius: float = 1.5
-    # early stop: the template moves less than motion_tol x sigma (RMS) in one iteration
-    # (0 = the energy criterion only)
-    motion_tol: float = 0.1
-    # a frame whose matched fraction N_p / N falls below this is registered again from a
-    # coarse start (0 = never)
-    lost_fraction: float = 0.05
+    normal_radius: float = 1.5  # normals' neighbourhood, x the rest-point spacing
+    motion_tol: float = 0.1  # stop when the template moves < this x sigma (RMS; 0 = off)
+    lost_fraction: float = 0.05  # N_p / N below this: the frame again from a coarse start
     sor_neighbors: int = 20  # rest surface: statistical outlier removal, neighbours
     sor_std_ratio: float = 2.0  # ... keeps mean neighbour distance < mean + ratio x std
     mls_neighbors: int = 16  # rest surface: MLS projection neighbours (0 = off)
-    # rest surface: drop points whose rest_sparse_neighbors-th neighbour lies farther than
-    # rest_sparse_ratio x the median of that distance (0 = off)
+    # rest surface: sparse-point removal as [preprocess] sparse_* (ratio 0 = off)
     rest_sparse_neighbors: int = 10
     rest_sparse_ratio: float = 4.0
-    # rounds of refinement from the skeleton: after step 3 every frame is registered again on
-    # its own from the rest points posed by step 3's skeleton, and steps 2-3 run again on it
-    # (0 = one pass, §4). Not part of the step-1 checkpoint key
+    # rounds of re-registration from step 3's skeleton, each followed by steps 2-3
+    # (pointrig.registration.refine_registration; 0 = one pass, §4)
     refine_rounds: int = 1
     workers: int = 0  # threads for the two chains and the refined frames (0 = all cores)
 
@@ -350,122 +332,92 @@ class StructureConfig:
     n_clusters: int = 30  # initial k of the k-means; the refinement removes the extra ones
     cluster_rounds: int = 10  # rounds of (i) Kabsch fit (Eq. 14), (ii) relabel, (iii) vote
     seed: int = 0  # k-means++ seed; the step is deterministic given it
-    # seed ensemble: the step runs from the seeds seed .. seed + ensemble_seeds - 1 and keeps
-    # the medoid run (joint trajectories nearest the other runs', each joint's distance capped
-    # at ensemble_radius x size); 1 = one run (§5)
+    # runs from seeds seed .. seed + ensemble_seeds - 1, the medoid kept
+    # (pointrig.structure.extract_structure; 1 = one run, §5)
     ensemble_seeds: int = 5
-    ensemble_radius: float = 0.03
+    ensemble_radius: float = 0.03  # cap of a joint's distance between runs, x size
     kmeans_iterations: int = 30  # Lloyd iterations of the k-means
-    # k-means features: [rest position, trajectory_weight x s x displacements y^t - q], s
-    # giving both blocks the same total variance (0 = rest positions only)
+    # weight of the displacement trajectories against the rest positions in the k-means
+    # features (pointrig.structure.kmeans_features; 0 = rest positions only)
     trajectory_weight: float = 1.0
     kmeans_frames: int = 20  # frames (evenly spaced) whose displacements enter the features
-    # rest-pose neighbours of a point: the ball of (iii), the candidate bones of (ii) and the
-    # touching test of §5.3
-    vote_neighbors: int = 10
-    # ball radius of (iii): vote_radius_ratio x the median distance to the vote_neighbors-th
-    # neighbour
-    vote_radius_ratio: float = 2.0
-    # the vote (iii) moves a point only to a bone whose residual for it is at most
-    # vote_guard_ratio x its best candidate's (0 = unguarded, §5.2)
+    vote_neighbors: int = 10  # rest-pose neighbours: the ball of (iii), the candidates of (ii)
+    vote_radius_ratio: float = 2.0  # ball radius, x the median vote_neighbors-th distance
+    # (iii) moves a point only to a bone whose residual is at most this x its best
+    # candidate's (0 = unguarded, §5.2)
     vote_guard_ratio: float = 2.0
     post_merge_rounds: int = 3  # clustering rounds after each refinement change
-    # a rest-pose neighbour counts (ball, candidates, touching test) only if the two points stay
-    # within neighbor_stretch x the ball radius (graph neighbours: x their rest distance) in
-    # every frame (0 = rest-pose neighbourhoods, §5.2)
+    # neighbours count only while within this x the ball radius (graph: x their rest
+    # distance) in every frame (0 = rest-pose neighbourhoods, §5.2)
     neighbor_stretch: float = 2.0
 
     # --- bone graph (§5.3) ---
     touch_min_pairs: int = 3  # two bones touch if this many neighbour pairs straddle them
-    # graph edges count only neighbours within graph_radius_ratio x the median nearest-neighbour
-    # spacing (a wider gap: not touching, bridged)
-    graph_radius_ratio: float = 2.0
-    # bridges between disconnected parts of the touching graph cost the RMS dislocation
-    # RMS_t |(R_i^t - R_j^t) c + T_i^t - T_j^t| at their Eq. 20 joint c (pulled towards the gap's
-    # midpoint with relative weight bridge_joint_prior) + bridge_gap_weight x gap (metres)
+    graph_radius_ratio: float = 2.0  # graph edges' neighbours: within this x the spacing
+    # bridge cost: RMS dislocation at the pair's Eq. 20 joint (its pull to the gap's
+    # midpoint: bridge_joint_prior) + bridge_gap_weight x the gap in metres
     bridge_joint_prior: float = 0.05
     bridge_gap_weight: float = 0.1
-    # weight of the touching edges (the spanning tree picks each bone's parent): "dislocation",
-    # the same RMS dislocation with the joint pulled towards the pair's contact band with
-    # relative weight edge_joint_prior (~0 for bones rotating about a common point where they
-    # touch); "eq15": the transform-swap residual e_ij of Eq. 15 (§5.3)
+    # touching edges' weight: "dislocation" (RMS dislocation at the pair's joint, its pull to
+    # the contact band: edge_joint_prior) | "eq15" (e_ij of Eq. 15, §5.3)
     edge_weight: str = "dislocation"
     edge_joint_prior: float = 1.0
 
     # --- refinement (§5.4) ---
-    # two bones are one if the merge_percentile-th percentile of the angle of their relative
-    # rotation between any two frames stays below merge_angle_deg (degrees)
+    # two bones merge if the merge_percentile-th percentile of their relative rotation's
+    # angle between two frames stays below this, degrees
     merge_angle_deg: float = 10.0
-    # "angle": that test alone; "both": also the displacement, that angle times the smaller
-    # bone's reach from the pair's contact point, must stay below merge_displacement x size
+    # "angle": that test alone; "both": also that angle x the smaller bone's reach below
+    # merge_displacement x size
     merge_rule: str = "both"
     merge_displacement: float = 0.01
     merge_percentile: float = 95.0
-    # the percentile is first discounted (in quadrature) by noise_margin x the percentile a
-    # noise-only relative rotation reaches, from each bone's Kabsch rotation variance (0 = off)
-    noise_margin: float = 1.0
-    # that variance is multiplied by n^noise_corr_exponent (n = the bone's points): correlated
-    # residuals leave n^(1 - exponent) independent points (0 = independent residuals)
+    noise_margin: float = 1.0  # angle discounted by this x its Kabsch-noise level (0 = off)
+    # that noise's variance x n^noise_corr_exponent, n = the bone's points (0 = independent)
     noise_corr_exponent: float = 0.5
     min_cluster_fraction: float = 0.005  # clusters below this x M points are absorbed
     leaf_min_fraction: float = 0.01  # a leaf at a branching parent below this x M is pruned
-    # blend band: a bone with two or more tree neighbours whose trajectories a per-point blend
-    # of two neighbours' motions fits within band_ratio x the residual variance of its own
-    # rigid fit is a skinning transition, not a bone (0 = off)
+    # a bone that a per-point blend of two neighbours' motions fits within this x its own
+    # rigid fit's residual variance is a skinning band, not a bone (0 = off)
     band_ratio: float = 1.5
-    # close joints: a non-root bone whose head joint and every child joint lie within
-    # short_bone_ratio x its extent (95th percentile distance of its points from their
-    # centroid) is removed and its joints merged (§5.4: "very close" joints)
+    # close joints (§5.4): a bone whose joints lie within this x its extent is removed
     short_bone_ratio: float = 0.75
-    # invisible bone: a non-root bone whose points its tree neighbours' motions explain to
-    # within invisible_bone_fraction x size (RMS) beyond its own fit goes to them (0 = off)
+    # a bone whose neighbours' motions explain its points within this x size (RMS) beyond its
+    # own fit goes to them (0 = off)
     invisible_bone_fraction: float = 0.005
     refine_passes: int = 25  # rounds of merge / prune / rebuild
-    # at most this many bones (= output joints; 0 = no cap): the refinement goes on removing
-    # the bone whose removal adds the least misfit until the cap holds
-    max_joints: int = 0
+    max_joints: int = 0  # at most this many bones = output joints (0 = no cap)
 
     # --- joints (Eq. 20) and root (§5.3) ---
     eta: float = 1.0  # eta, boundary-centroid weight in E_Joint (Eq. 20), Table 1
-    # root joint: the root part's centre (§5.3), or its far end when its children all attach
-    # on one side (mean unit direction to them at least this long; 1 = only a chain's end,
-    # 0 = always the centre)
+    # root joint at the root part's far end when its children attach on one side with this
+    # alignment (pointrig.structure.root_joint_position; 0 = the centre, §5.3)
     root_end_alignment: float = 1.0
-    # root bone: "largest" (the most points) | "centroid" (the centre nearest the rest-pose
-    # centroid, §5.3)
+    # root bone: "largest" (most points) | "centroid" (centre nearest the rest centroid, §5.3)
     root_choice: str = "largest"
-    # output skeleton: a root that is a leaf of a branched tree moves to the body's centre
-    # through the tree ("centre") or stays ("keep")
+    # output: a root that is a leaf of a branched tree moves to the body's centre ("centre")
+    # or stays ("keep"; pointrig.structure.output_tree)
     leaf_root: str = "centre"
-    # that centre: the centroid of the rest points whose eccentricity through the tree is
-    # within centre_tolerance x size of the least (0 = the one point of least eccentricity)
+    # that centre: the rest points within this x size of the least eccentricity (0 = one point)
     centre_tolerance: float = 0.04
-    # output skeleton after step 3: a leaf bone whose rest shape bends at least
-    # leaf_split_angle_deg (degrees; 0 = off) and whose two pieces move apart gets a joint at
-    # the bend (pointrig.structure.split_bent_leaves): each segment at least
-    # leaf_split_min_fraction of the polyline, the distal one at least leaf_split_min_length x
-    # size, the leaf at least leaf_split_min_points points, and the two pieces' rigid fits
-    # at most leaf_split_max_ratio of one fit's squared residual
+    # output: a joint where a leaf bone bends at least this many degrees and its pieces move
+    # apart (pointrig.structure.split_bent_leaves; 0 = off); the other leaf_split_* its limits
     leaf_split_angle_deg: float = 30.0
-    leaf_split_min_fraction: float = 0.1
-    leaf_split_min_length: float = 0.03
-    leaf_split_min_points: int = 12
-    leaf_split_max_ratio: float = 0.5
-    # output skeleton after step 3: a non-root bone with two or more children whose rest points
-    # fall in pieces farther apart than split_disconnected x the median rest spacing becomes
-    # one bone per piece (pointrig.structure.split_disconnected_bones; 0 = off)
+    leaf_split_min_fraction: float = 0.1  # shorter segment, fraction of the polyline
+    leaf_split_min_length: float = 0.03  # distal segment, x size
+    leaf_split_min_points: int = 12  # rest points of the leaf
+    leaf_split_max_ratio: float = 0.5  # two pieces' fit residual over one fit's
+    # output: one bone per piece of a bone with children whose pieces lie this x the rest
+    # spacing apart (pointrig.structure.split_disconnected_bones; 0 = off)
     split_disconnected: float = 3.0
 
     # --- single-view depth correction ---
-    # a depth camera sees the near side of each part: boundary centroids c~ move back along
-    # the camera ray to the depth of the part's axis, the (1 - q) depth quantile of their
-    # points plus the radius read from their width across the view (q = view_depth_quantile
-    # in (1/2, 1]; pointrig.view.view_depth_correct); 0 = off
+    # c~ moved back along the camera ray to the part's axis depth, q in (1/2, 1]
+    # (pointrig.view.view_depth_correct; 0 = off)
     view_depth_quantile: float = 0.95
     camera_position: tuple[float, float, float] = (0.0, 0.0, 0.0)  # in the input frame, m
     # "yes" (one depth camera), "no" (fused or two-sided clouds: the paper's centroids),
-    # "auto" (correct only if the rest points form one surface layer along the camera's rays,
-    # pointrig.view.is_single_view)
+    # "auto" (pointrig.view.is_single_view decides)
     single_view: str = "yes"
     workers: int = 0  # threads for the ensemble's seeds (0 = all cores)
 
@@ -567,63 +519,45 @@ class JointsConfig:
     tau_min: float = 1e-6  # floor of tau^t, m^2
     max_iterations: int = 20  # EM iterations (Algorithm 2; 0 = the start as it is)
     tolerance: float = 1e-5  # stop when |dE_Total| / |E_Total| (Eq. 21a) falls below this
-    # "articulated": bones always meet at their joints, joints solved with the translations
-    # (pointrig.joints.solve_joints_articulated); "paper": Algorithm 2 as printed
+    # "articulated": bones always meet at their joints (pointrig.joints.
+    # solve_joints_articulated); "paper": Algorithm 2 as printed
     mode: str = "articulated"
-    # articulated mode: weight of eta |c - c~|^2 relative to one frame of data on the joint's
-    # subtree
-    joint_prior: float = 1.0
-    # E_GMM scaled by M / N_t so that the data term counts each template point once whatever
-    # the point density (False = Eq. 21a as printed)
-    gmm_density_normalize: bool = True
-    # Eq. 22 blend-weight choice among the point's step-2 bone and its tree neighbours
-    # ("tree") or among all bones ("all", §6)
+    joint_prior: float = 1.0  # articulated: eta |c - c~|^2 against one frame of data
+    gmm_density_normalize: bool = True  # E_GMM x M / N_t (False = Eq. 21a as printed)
+    # Eq. 22 bones of a point: its step-2 bone and tree neighbours ("tree") | all ("all", §6)
     weight_candidates: str = "tree"
-    # Eq. 22 weight updates inside the EM loop (True: Algorithm 2); False: one Eq. 22 fit
-    # after the loop (the output's blend weights; joints and transforms do not depend on it)
+    # Eq. 22 updates in every iteration (Algorithm 2); False: one fit after the loop
     update_weights: bool = False
     zeta_scale: float = 0.001  # E_Register weight used = zeta x zeta_scale (1 = Table 1)
-    # tau_init scaled by (size / 1.8 m)^2, size = the rest points' bounding-box diagonal
-    # (Table 1's value is for human-sized subjects)
-    tau_init_relative: bool = True
-    # also stop when no joint moved more than this (metres) in an iteration, after
-    # min_iterations (0 = the energy criterion only)
+    tau_init_relative: bool = True  # tau_init x (size / 1.8 m)^2 (Table 1: human-sized)
+    # also stop when no joint moves more than this in an iteration, metres (0 = off)
     joint_tolerance: float = 5e-4
-    min_iterations: int = 3
+    min_iterations: int = 3  # iterations before joint_tolerance may stop the EM
     bone_sweeps: int = 1  # bone-update sweeps (Eqs. 23-26) per M-step
-    # articulated mode: temporal rotation prior lambda/2 sum_t |R^(t-1) - 2 R^t + R^(t+1)|_F^2
-    # per bone, lambda = rotation_smoothing x mean data weight x size^2 (0 = off)
+    # articulated: temporal rotation prior sum_t |R^(t-1) - 2 R^t + R^(t+1)|_F^2, weight this
+    # x mean data weight x size^2 (0 = off)
     rotation_smoothing: float = 0.01
-    # output bones: "minimal" gives each elongated non-root limb (its points' spread along its
-    # axis at least twist_min_elongation x across) whose fitted roll against its parent reaches
-    # twist_min_roll_deg (degrees, 90th percentile over frames) its parent's rotation times the
-    # smallest turn to its fitted direction (pointrig.kinematics.minimal_twist; joints
-    # unchanged); "fit": the rotations as fitted
+    # output bones: "minimal" removes limbs' roll about their own axes
+    # (pointrig.kinematics.minimal_twist) | "fit": as fitted
     bone_twist: str = "minimal"
-    twist_min_elongation: float = 2.0
-    twist_min_roll_deg: float = 60.0
-    # output joints (single-view input only): "chord" moves each joint along its rest-frame
-    # ray to the front depth at its pixel plus the half-width of the silhouette's shortest
-    # chord there, median over depth_frames frames (pointrig.view.view_depth_joints); "off"
+    twist_min_elongation: float = 2.0  # a limb: spread along its axis over across it
+    twist_min_roll_deg: float = 60.0  # a limb's p90 roll that makes it "minimal", degrees
+    # output joints along the camera ray to their parts' axis depth ("chord",
+    # pointrig.view.view_depth_joints; single-view input only) | "off"
     joint_depth: str = "chord"
-    depth_frames: int = 10
-    # EM start: "track" fits step 2's skeleton to the raw frames one by one outwards from the
-    # rest frame (pointrig.joints.track_bones); "structure": step 2's bone motions (§6)
+    depth_frames: int = 10  # frames read by the chord rule
+    # EM start: "track" (pointrig.joints.track_bones, step 2's skeleton fitted to the raw
+    # frames) | "structure" (step 2's bone motions, §6)
     init: str = "track"
     track_iterations: int = 10  # EM iterations per tracked frame
     track_velocity: float = 1.0  # constant-velocity prediction gain (0 = previous frame)
     track_tau_max: float = 0.01  # cap of a frame's starting tau, m^2 at 1.8 m (scaled)
     track_anneal: float = 0.5  # coarse-to-fine: tau at most this x the previous until tau_init
-    # start from the previous frame's pose instead of the prediction when its symmetric
-    # chamfer misfit is below track_predict_check x the prediction's (0 = always predict)
-    track_predict_check: float = 1.0
-    # normal agreement in the tracker's E-step (as [registration] normal_kappa; 0 = off),
-    # normals fitted within normal_radius x the rest-point spacing
-    track_normal_kappa: float = 1.0
-    normal_radius: float = 1.5
-    estep_radius_sigmas: float = 3.5  # truncated E-step (Eq. 4): pairs within this x sqrt(tau^t)
-    # observed points per frame in the E-steps, evenly along the sensor order (0 = all)
-    estep_max_points: int = 4000
+    track_predict_check: float = 1.0  # as [registration] predict_check, per tracked frame
+    track_normal_kappa: float = 1.0  # as [registration] normal_kappa, in the tracker (0 = off)
+    normal_radius: float = 1.5  # normals' neighbourhood, x the rest-point spacing
+    estep_radius_sigmas: float = 3.5  # truncated E-step (Eq. 4): pairs within this x sqrt(tau)
+    estep_max_points: int = 4000  # observed points per frame in the E-steps (0 = all)
     workers: int = 0  # threads for a tracked frame's two hypotheses (0 = all cores)
 
     def __post_init__(self) -> None:

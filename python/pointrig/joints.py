@@ -28,7 +28,7 @@ Two variants (``JointsConfig.mode``):
     and the joint positions are solved *jointly with the translations* from the data
     (a linear least-squares problem), plus the ``eta |c - c~|^2`` prior. With the paper's
     alternation, the growing alpha makes every bone rotate about the previous joint, so Eq. 20
-    returns that joint again and the joints barely move; see docs/joints.md for the ablation.
+    returns that joint again and the joints barely move (docs/joints.md).
 """
 
 from __future__ import annotations
