@@ -37,34 +37,46 @@ def test_pipeline_is_thread_count_independent(tmp_path):
                                np.asarray(b["joint_positions"]), atol=TOL_M, rtol=0)
 
 
-def test_pipeline_is_worker_count_independent(monkeypatch):
-    """Step 1's forward and backward chains, a tracked frame's two hypotheses, the
-    refinement's frames and step 2's ensemble seeds two at a time
-    (``pointrig.registration._CHAIN_WORKERS``, ``pointrig.joints._TRACK_WORKERS``,
-    ``pointrig.registration._REFINE_WORKERS``, ``pointrig.structure._ENSEMBLE_WORKERS``) give
-    bit for bit the skeleton of one after the other."""
-    import pointrig.joints as joints_mod
-    import pointrig.registration as reg_mod
-    import pointrig.structure as structure_mod
+def test_pipeline_is_worker_count_independent():
+    """Step 1's forward and backward chains, the refinement's frames, step 2's ensemble seeds
+    and a tracked frame's two hypotheses run side by side on ``workers`` threads
+    (``[registration]``, ``[structure]``, ``[joints] workers``): two workers give bit for bit
+    the skeleton of one (one after the other)."""
+    import dataclasses
+
     from pointrig.config import PipelineConfig
     from pointrig.pipeline import extract
 
     syn = synthesize("arm", n_frames=8, seed=4, camera=Camera.kinect(320),
                      noise=NoiseConfig(seed=4))
     seq = syn.to_point_sequence()
-    cfg = PipelineConfig()
-    assert cfg.joints.track_from_structure and cfg.registration.refine_rounds >= 1
-    assert cfg.structure.ensemble_seeds > 1
-    assert min(joints_mod._TRACK_WORKERS, reg_mod._REFINE_WORKERS, reg_mod._CHAIN_WORKERS,
-               structure_mod._ENSEMBLE_WORKERS) > 1
+
+    def with_workers(n: int) -> PipelineConfig:
+        cfg = PipelineConfig()
+        return dataclasses.replace(
+            cfg, registration=dataclasses.replace(cfg.registration, workers=n),
+            structure=dataclasses.replace(cfg.structure, workers=n),
+            joints=dataclasses.replace(cfg.joints, workers=n))
+
+    cfg = with_workers(2)
+    assert cfg.registration.refine_rounds >= 1 and cfg.structure.ensemble_seeds > 1
+    assert cfg.joints.init == "track"
     side = extract(seq, cfg, None, pictures=False)
-    monkeypatch.setattr(joints_mod, "_TRACK_WORKERS", 1)
-    monkeypatch.setattr(reg_mod, "_REFINE_WORKERS", 1)
-    monkeypatch.setattr(reg_mod, "_CHAIN_WORKERS", 1)
-    monkeypatch.setattr(structure_mod, "_ENSEMBLE_WORKERS", 1)
-    alone = extract(seq, cfg, None, pictures=False)
+    alone = extract(seq, with_workers(1), None, pictures=False)
     np.testing.assert_array_equal(side.registration.points, alone.registration.points)
     np.testing.assert_array_equal(side.refined_registration.points,
                                   alone.refined_registration.points)
     np.testing.assert_array_equal(side.structure.labels, alone.structure.labels)
+    np.testing.assert_array_equal(side.joints.R, alone.joints.R)
     np.testing.assert_array_equal(side.skeleton.joint_positions, alone.skeleton.joint_positions)
+
+
+def test_pool_size_follows_workers_and_tasks(monkeypatch):
+    """``workers = 0`` means the machine's cores; never more threads than tasks, never none."""
+    from pointrig.config import pool_size
+
+    monkeypatch.setattr(os, "cpu_count", lambda: 6)
+    assert pool_size(0, 100) == 6 and pool_size(0, 2) == 2
+    assert pool_size(3, 100) == 3 and pool_size(3, 1) == 1 and pool_size(1, 0) == 1
+    monkeypatch.setattr(os, "cpu_count", lambda: None)
+    assert pool_size(0, 4) == 1

@@ -1,4 +1,4 @@
-"""The output stage's leaf split at a bend (``structure.split_bent_leaves``, session 57).
+"""The output stage's leaf split at a bend (``structure.split_bent_leaves``).
 
 A constructed leg: a thigh (the root bone) and one leaf bone holding the shin and an L-shaped
 foot. The registered points are the exact motion of the three true parts plus noise, so the

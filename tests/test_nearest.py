@@ -76,7 +76,7 @@ def test_bad_input_is_a_typed_error() -> None:
 
 
 def _fps_numpy(points: np.ndarray, n: int, seed: int) -> np.ndarray:
-    """The numpy loop that ``farthest_point_sampling`` ran before session 66 (the oracle)."""
+    """Farthest-point sampling as a plain numpy loop (the oracle)."""
     m = len(points)
     rng = np.random.default_rng(seed)
     idx = np.empty(n, dtype=np.int64)

@@ -85,7 +85,7 @@ def test_config_file_errors_name_the_parameter(tmp_path):
 
     cases = {
         "[joints]\ninit = 3\n": "init must be a string",
-        "[joints]\ntrack_from_structure = 1\n": "must be true or false",
+        "[joints]\nupdate_weights = 1\n": "must be true or false",
         "[joints]\nno_such = 1\n": "unknown parameter 'no_such'",
         "[nowhere]\nx = 1\n": "unknown section [nowhere]",
         # a mistyped choice fails when the file is read, before step 1 runs
@@ -115,14 +115,15 @@ def test_every_choice_parameter_is_checked_when_the_config_is_made():
         PreprocessConfig: {"background": ("auto", "keep")},
         RegistrationConfig: {"solver": ("gauss_newton", "sweeps"),
                              "beta_smooth_mode": ("relative", "fixed"),
-                             "sigma2_start": ("data", "residual", "fixed"),
-                             "rest_frame": ("middle", 0, 7)},
-        StructureConfig: {"merge_rule": ("angle", "both"), "merge_reference": ("range", "rest"),
+                             "sigma2_start": ("data", "fixed"),
+                             "rest_frame": ("fit", 0, 7)},
+        StructureConfig: {"merge_rule": ("angle", "both"), "edge_weight": ("dislocation", "eq15"),
                           "root_choice": ("largest", "centroid"),
-                          "view_depth_method": ("width", "quantile"),
+                          "leaf_root": ("centre", "keep"),
                           "single_view": ("yes", "no", "auto")},
         JointsConfig: {"mode": ("articulated", "paper"), "init": ("track", "structure"),
-                       "weight_candidates": ("tree", "all"), "retrack": ("chord", "off")},
+                       "weight_candidates": ("tree", "all"), "bone_twist": ("minimal", "fit"),
+                       "joint_depth": ("chord", "off")},
     }
     for cls, fields_ in choices.items():
         for name, good in fields_.items():
@@ -137,8 +138,8 @@ def test_every_choice_parameter_is_checked_when_the_config_is_made():
 
 def test_refinement_is_on_by_default_and_off_reuses_the_checkpoint(demo_run, tmp_path,
                                                                      capsys):
-    """The default run refines once (``[registration] refine_rounds = 1``, docs/registration.md
-    "Session 26": every frame registered again from the skeleton's pose, steps 2-3 rerun) and
+    """The default run refines once (``[registration] refine_rounds = 1``: every frame
+    registered again from the skeleton's pose, steps 2-3 rerun) and
     records its time; ``refine_rounds = 0`` (the paper's single pass) reuses the same step-1
     checkpoint (refine_rounds is not in its key), reports no refinement and keeps the
     accuracy bound."""
@@ -199,7 +200,7 @@ def test_rest_frame_option_sets_the_rest_pose_and_is_recorded(tmp_path, capsys):
 
 
 def test_max_joints_caps_the_skeleton_and_is_recorded(demo_run, tmp_path, capsys):
-    """``--max-joints N`` (``[structure] max_joints``, docs/structure.md "Session 39"): at most
+    """``--max-joints N`` (``[structure] max_joints``): at most
     N joints, the cap recorded in skeleton.json, the demo's joints still found and fewer
     extra ones than the uncapped run (ground truth as the oracle); a bad value is one error
     line before any step, with nothing written."""
@@ -226,7 +227,7 @@ def test_max_joints_caps_the_skeleton_and_is_recorded(demo_run, tmp_path, capsys
 
 
 def test_bone_twist_changes_rolls_only(demo_run, tmp_path):
-    """``[joints] bone_twist`` (docs/joints.md "Session 45") turns limbs about their own axes
+    """``[joints] bone_twist`` turns limbs about their own axes
     only: the default ("minimal", roll gate 60 deg) and "fit" and "minimal" without the gate
     give the same joint trajectories (the oracle: the fitted run), the ungated run's bone
     rotations differ from the fitted ones, and each choice is recorded."""
@@ -260,7 +261,7 @@ def test_bone_twist_changes_rolls_only(demo_run, tmp_path):
 
 
 def test_joint_depth_moves_rest_joints_along_camera_rays_only(demo_run, tmp_path):
-    """``[joints] joint_depth`` (docs/joints.md "Session 47") moves each output joint along its
+    """``[joints] joint_depth`` moves each output joint along its
     rest-frame camera ray (the demo's camera is the origin) and changes nothing else of the
     tree; "off" keeps step 3's joints, and the choice is recorded."""
     cfg = tmp_path / "off.toml"
@@ -282,7 +283,7 @@ def test_joint_depth_moves_rest_joints_along_camera_rays_only(demo_run, tmp_path
         (demo_run / "skeleton.json").read_text())["params"]["timings_s"]
     doc_on = json.loads((demo_run / "skeleton.json").read_text())["params"]["joints"]
     doc_off = json.loads((out / "skeleton.json").read_text())["params"]["joints"]
-    assert doc_on["joint_depth"] == "chord" and doc_on["depth_points"] == "visible"
+    assert doc_on["joint_depth"] == "chord"
     assert doc_off["joint_depth"] == "off"
 
 
@@ -338,50 +339,3 @@ def test_output_skeleton_is_what_extract_writes():
     along = np.sum(moved * ray, axis=1)
     np.testing.assert_allclose(moved, along[:, None] * ray, atol=1e-9)
     assert np.abs(along).max() > 1e-3
-
-
-def test_retrack_reruns_the_final_step3_about_depth_corrected_pivots():
-    """``[joints] retrack = "chord"`` (docs/joints.md "Session 59"): that pipeline is the
-    default (``"off"``) pipeline followed by one more step 3 on the structure that
-    :func:`pointrig.pipeline.retrack_structure` returns, whose joints are the first step 3's
-    joints moved by the depth pass (the oracle: :func:`pointrig.view.view_depth_joints` called
-    directly), along their camera rays only, with everything else of step 2 kept. Off, or on
-    input that is not one view, there is no retrack."""
-    import dataclasses
-
-    from pointrig.config import JointsConfig, PipelineConfig
-    from pointrig.io import read_sequence
-    from pointrig.joints import learn_joints
-    from pointrig.pipeline import extract, retrack_structure
-    from pointrig.view import view_depth_joints
-
-    seq = read_sequence(demo_path() / "frames")
-    on_cfg = PipelineConfig(joints=JointsConfig(retrack="chord"))
-    off_cfg = PipelineConfig()
-    assert off_cfg.joints.retrack == "off"
-    on = extract(seq, on_cfg, None, pictures=False)
-    off = extract(seq, off_cfg, None, pictures=False)
-    st, jr = off.structure, off.joints
-    final = off.refined_registration or off.registration
-    assert st.view_camera is not None  # the demo is one view
-    assert retrack_structure(st, jr, off.frames, final.points, off_cfg) is None
-    assert retrack_structure(dataclasses.replace(st, view_camera=None), jr, off.frames,
-                             final.points, on_cfg) is None
-    pivots = retrack_structure(st, jr, off.frames, final.points, on_cfg)
-    expected, shift = view_depth_joints(off.frames, final.points, np.argmax(jr.weights, 1),
-                                        st.bone_parent, jr.joints_rest, jr.R, jr.T,
-                                        st.view_camera)
-    np.testing.assert_array_equal(pivots.joints_rest, expected)
-    assert np.abs(shift).max() > 1e-3  # some pivot moved
-    moved = pivots.joints_rest - jr.joints_rest
-    ray = jr.joints_rest / np.linalg.norm(jr.joints_rest, axis=1, keepdims=True)
-    along = np.sum(moved * ray, axis=1)
-    np.testing.assert_allclose(moved, along[:, None] * ray, atol=1e-9)
-    for name in ("labels", "bone_parent", "R", "T", "c_tilde"):
-        np.testing.assert_array_equal(getattr(pivots, name), getattr(st, name))
-    rest_index = off.registration.params.get("rest_frame_index")
-    again = learn_joints(off.frames, final.rest_points, final.points, pivots, on_cfg.joints,
-                         rest_index=None if rest_index is None else int(rest_index))
-    np.testing.assert_array_equal(again.joints_rest, on.joints.joints_rest)
-    np.testing.assert_array_equal(again.R, on.joints.R)
-    assert np.abs(on.skeleton.joint_positions - off.skeleton.joint_positions).max() > 1e-4

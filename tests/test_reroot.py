@@ -230,14 +230,6 @@ def test_output_root_joint_moves_back_to_the_axis_depth() -> None:
     # along the camera ray through the joint: the same direction from the camera, farther
     u0, u1 = joints[0] / np.linalg.norm(joints[0]), j2[0] / np.linalg.norm(j2[0])
     np.testing.assert_allclose(u1, u0, atol=1e-12)
-    # "surface", or no camera, keeps the visible centroid
-    for c, cam in ((dataclasses.replace(cfg, root_depth="surface"), camera), (cfg, None)):
-        _, j3 = output_tree(Q, labels, parent, joints, c, cam)
-        np.testing.assert_array_equal(j3, joints)
-
-
-def test_root_depth_choice_is_validated() -> None:
-    from pointrig.errors import ConfigError
-
-    with pytest.raises(ConfigError, match="root_depth"):
-        StructureConfig(root_depth="middle")
+    # no camera (input that is not one view) keeps the visible centroid
+    _, j3 = output_tree(Q, labels, parent, joints, cfg, None)
+    np.testing.assert_array_equal(j3, joints)

@@ -237,25 +237,6 @@ def test_root_joint_at_the_free_end_of_a_one_sided_root_part():
     assert abs(root_joint_position(rod, labels, 0, top, par, 0.7)[0]) < 0.02
 
 
-def test_swing_angles_ignore_twist_about_the_axis():
-    """Oracle: a rotation about the axis between two bones has zero swing; a rotation about a
-    perpendicular axis swings by its full angle; a mix swings by the angle between a and R a."""
-    from scipy.spatial.transform import Rotation
-
-    from pointrig.structure import swing_angles
-
-    axis = np.array([[0.6, 0.8, 0.0]])
-    R = np.zeros((3, 2, 3, 3))
-    R[:, 0] = np.eye(3)
-    R[0, 1] = Rotation.from_rotvec(0.7 * axis[0]).as_matrix()
-    R[1, 1] = Rotation.from_rotvec([0, 0, 0.4]).as_matrix()
-    mix = Rotation.from_rotvec([0.3, -0.2, 0.5]).as_matrix()
-    R[2, 1] = mix
-    got = swing_angles(R, np.array([[0, 1]]), axis)[0]
-    want = np.arccos(np.clip(axis[0] @ mix @ axis[0], -1, 1))
-    np.testing.assert_allclose(got, [0.0, 0.4, want], atol=1e-7)
-
-
 def test_relative_rotation_range_matches_scipy_and_ignores_the_rest_frame():
     """Oracle: the angle between the relative rotations of every two frames, by scipy; the
     statistic is unchanged when every bone's rotations are re-referenced to another rest pose
@@ -279,18 +260,18 @@ def test_relative_rotation_range_matches_scipy_and_ignores_the_rest_frame():
 
 @pytest.mark.parametrize("seed", [0, 1])
 def test_small_swings_of_long_limbs_are_kept_by_the_displacement_gate(seed):
-    """A 0.85 m arm whose parts swing only 6-8 deg against each other: every swing moves the
-    child's points by centimetres (> 1.5 % of the size), a visible articulation. The angle rule
-    alone (10 deg) folds the arm into one bone; ``merge_rule="both"`` keeps the parts (ground
-    truth: the figure's parts, purity >= 0.9). Sub-degree swings (millimetres) still merge.
-    The angle rule is measured against the rest pose here (``merge_reference="rest"``): the
-    default range reference sees up to twice the amplitude and keeps these swings as well."""
+    """A 0.85 m arm whose parts swing only 6-8 deg against each other (12-16 deg between the
+    extreme frames): every swing moves the child's points by centimetres (> 1.5 % of the
+    size), a visible articulation. The angle rule alone at 20 deg folds the arm into one bone;
+    ``merge_rule="both"`` with the same angle keeps the parts (ground truth: the figure's
+    parts, purity >= 0.9). Sub-degree swings (millimetres) still merge."""
     seq = make_sequence("arm", seed=seed, noise=0.001, amp_deg=(6.0, 8.0))
     rest, pts, truth, fig, R, T = (seq[k] for k in ("rest", "points", "labels", "figure", "R",
                                                     "T"))
     angle = extract_structure(rest, pts, StructureConfig(merge_rule="angle", single_view="no",
-                                                         merge_reference="rest"))
-    both = extract_structure(rest, pts, StructureConfig(merge_rule="both", single_view="no"))
+                                                         merge_angle_deg=20.0))
+    both = extract_structure(rest, pts, StructureConfig(merge_rule="both", single_view="no",
+                                                        merge_angle_deg=20.0))
     # oracle: a part whose points move < 1.5 % of the size against its parent (largest RMS
     # between two frames) is not an articulation: fold it into its parent
     visible = _visible_parts(rest, truth, fig, R, T, 0.015)
@@ -300,14 +281,15 @@ def test_small_swings_of_long_limbs_are_kept_by_the_displacement_gate(seed):
 
     seq = make_sequence("arm", seed=seed, noise=0.001, amp_deg=(0.3, 0.5))
     tiny = extract_structure(seq["rest"], seq["points"],
-                             StructureConfig(merge_rule="both", single_view="no"))
+                             StructureConfig(merge_rule="both", single_view="no",
+                                             merge_angle_deg=20.0))
     assert tiny.n_bones == 1
 
 
 def _visible_parts(rest, truth, fig, R, T, fraction):
     """Ground-truth labels with every part folded into its parent whose points move less than
     ``fraction`` of the size against it (largest RMS between two frames, like the evaluation's
-    'visibly articulates' test and the default ``merge_reference="range"``)."""
+    'visibly articulates' test and the merge test)."""
     size = float(np.linalg.norm(np.ptp(rest, axis=0)))
     visible = truth.copy()
     for p in range(len(fig.names) - 1, -1, -1):
@@ -329,7 +311,7 @@ def test_idle_sized_swings_are_kept_at_the_default_displacement(amp, seed):
     evaluation's 1.5 % of the size against their parent are found by the default
     ``merge_displacement`` (0.01; purity >= 0.9 against the oracle's parts). The gate measures
     a cluster's reach, shorter than its final part's while the limb is still in pieces, so a
-    gate at the evaluation's own 1.5 % folds some of them (docs/structure.md, session 49)."""
+    gate at the evaluation's own 1.5 % folds some of them."""
     seq = make_sequence("arm", seed=seed, noise=0.001, amp_deg=amp)
     rest, pts, truth, fig, R, T = (seq[k] for k in ("rest", "points", "labels", "figure", "R",
                                                     "T"))

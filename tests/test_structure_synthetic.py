@@ -135,9 +135,8 @@ def test_invisible_blend_pieces_are_removed_on_the_synth_quadruped():
     bone; with the pieces gone, the tree equals the ground truth with its static parts
     contracted (#5's quadruped topology). Seeds 0, 2, 5 and 8 of 0-9 pass this (3 of them
     without the test); the others keep the bone of a paw that swings just under the 1.5 %
-    or lose one just over it (docs/structure.md, session 17). One run (``ensemble_seeds =
-    1``): this tests the invisible-bone rule, not the seed ensemble, whose medoid of seeds 0-4
-    here is seed 2 with 16 bones for 17 parts (docs/structure.md, session 20)."""
+    or lose one just over it. One run (``ensemble_seeds = 1``): this tests the invisible-bone
+    rule, not the seed ensemble."""
     from pointrig.synth import synthesize
 
     s = synthesize("quadruped", n_frames=30, seed=0, amplitude=1.6)

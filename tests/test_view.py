@@ -6,6 +6,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from pointrig.config import StructureConfig
 from pointrig.structure import StructureResult, extract_structure
@@ -76,11 +77,19 @@ def test_depth_correct_weighted_quantile_matches_repeated_points():
     a = view_depth_correct(pts, reps.astype(float), c, cam, 0.8)
     b = view_depth_correct(np.repeat(pts, reps, axis=0), None, c, cam, 0.8)
     np.testing.assert_allclose(a, b, atol=1e-12)
-    # oracle: the depth along the ray equals numpy's inverted-cdf quantile of the depths
+    # oracle: the front depth (numpy's inverted-cdf 0.2 quantile of the depths along the ray)
+    # plus the radius from the spread across the view along its major axis
+    P = np.repeat(pts, reps, axis=0)
     u = (c - cam) / np.linalg.norm(c - cam)
-    d = (np.repeat(pts, reps, axis=0) - cam) @ u
-    expect = max(np.quantile(d, 0.8, method="inverted_cdf"), (c - cam) @ u)
-    assert (a - cam) @ u == pytest.approx(expect, abs=1e-12)
+    d = (P - cam) @ u
+    lateral = (P - c) - np.outer((P - c) @ u, u)
+    axis = np.linalg.eigh(np.cov(lateral.T, bias=True))[1][:, -1]
+    s = lateral @ axis
+    spread = np.quantile(s, 0.8, method="inverted_cdf") - np.quantile(s, 0.2,
+                                                                        method="inverted_cdf")
+    expect = max(np.quantile(d, 0.2, method="inverted_cdf") + spread / (2 * 0.6),
+                 (c - cam) @ u)
+    assert (a - cam) @ u == pytest.approx(expect, abs=1e-9)
 
 
 def _grazing_cut_ring(depth: float, radius: float, length: float, n: int, theta_max: float,
@@ -96,15 +105,16 @@ def _grazing_cut_ring(depth: float, radius: float, length: float, n: int, theta_
 
 
 @pytest.mark.parametrize("theta_deg", [90.0, 70.0])
-def test_width_method_finds_the_axis_of_an_image_sampled_ring(theta_deg):
+def test_depth_correct_finds_the_axis_of_an_image_sampled_ring(theta_deg):
     rng = np.random.default_rng(7)
     depth, r, q = 2.0, 0.06, 0.95
     a = r * np.sin(np.radians(theta_deg))  # half-width of what the sensor keeps
     pts = _grazing_cut_ring(depth, r, 0.3 * r, 40000, np.radians(theta_deg), rng)
     c = pts.mean(0)
     u = c / np.linalg.norm(c)
-    width = view_depth_correct(pts, None, c, np.zeros(3), q, method="width")
-    quant = view_depth_correct(pts, None, c, np.zeros(3), q, method="quantile")
+    width = view_depth_correct(pts, None, c, np.zeros(3), q)
+    # the alternative estimate, a high quantile of the depths along the ray
+    quant = np.quantile(pts @ u, q, method="inverted_cdf") * u
     assert np.linalg.norm(np.cross(width - c, u)) < 1e-12  # along the ray only
     # closed forms with y uniform on [-a, a]: the (1 - q) depth quantile is at |y| = (1 - q) a,
     # the spread between the y quantiles is 2 (2q - 1) a, and the q depth quantile is at
@@ -123,17 +133,15 @@ def test_width_method_finds_the_axis_of_an_image_sampled_ring(theta_deg):
         assert depth - quant @ u > 0.4 * r
 
 
-def test_width_method_never_moves_towards_camera_and_rejects_bad_arguments():
+def test_depth_correct_never_moves_a_ring_towards_camera_and_rejects_bad_quantiles():
     rng = np.random.default_rng(8)
     pts = _grazing_cut_ring(1.5, 0.05, 0.02, 500, np.radians(80), rng)
     behind = pts.mean(0) + np.array([0.0, 0.0, 0.5])
-    np.testing.assert_array_equal(
-        view_depth_correct(pts, None, behind, np.zeros(3), 0.95, method="width"), behind)
+    np.testing.assert_array_equal(view_depth_correct(pts, None, behind, np.zeros(3), 0.95),
+                                  behind)
     c = pts.mean(0)
-    with pytest.raises(ValueError, match="quantile > 1/2"):
-        view_depth_correct(pts, None, c, np.zeros(3), 0.5, method="width")
-    with pytest.raises(ValueError, match="unknown method"):
-        view_depth_correct(pts, None, c, np.zeros(3), 0.95, method="sideways")
+    with pytest.raises(ValueError, match="above 1/2"):
+        view_depth_correct(pts, None, c, np.zeros(3), 0.5)
 
 
 def test_two_layer_fraction_tells_one_view_from_a_closed_surface():
@@ -187,12 +195,6 @@ def test_structure_auto_applies_the_correction_only_to_single_view_input(visible
     st.save(path)
     back = StructureResult.load(path)
     assert back.view_quantile == st.view_quantile
-    assert back.view_method == st.view_method == cfg.view_depth_method
-    # files written before session 13 carry no method: they used the depth quantile
-    with np.load(path) as z:
-        old = {k: z[k] for k in z.files if k != "view_method"}
-    np.savez(tmp_path / "old.npz", **old)
-    assert StructureResult.load(tmp_path / "old.npz").view_method == "quantile"
     if st.view_camera is None:
         assert back.view_camera is None
     else:
@@ -217,13 +219,14 @@ def test_structure_rejects_bad_view_parameters():
     rng = np.random.default_rng(5)
     q, Y = _two_bone_sequence(True, rng)
     for bad in ({"view_depth_quantile": 1.5}, {"single_view": "maybe"},
-                {"camera_position": (0.0, float("nan"), 0.0)}, {"view_depth_method": "sideways"},
+                {"camera_position": (0.0, float("nan"), 0.0)}, {"camera_position": (0.0, 1.0)},
                 {"view_depth_quantile": 0.4}):
-        with pytest.raises(ConfigError):
+        (name,) = bad
+        with pytest.raises(ConfigError, match=rf"\[structure\] {name} must be"):
             extract_structure(q, Y, StructureConfig(**bad))
 
 
-# ---------------------------------------------------------------- the chord rule (session 47)
+# ---------------------------------------------------------------------------- the chord rule
 
 
 def _ray_cast_cylinder(depth: float, radius: float, x_range: tuple[float, float],
@@ -274,8 +277,7 @@ def test_chord_depth_offset_finds_a_ray_cast_cylinders_axis(start):
                                        np.array([0.0, 0.0, 1.0]), 0.02, 4.5 / 525, 6.0 / 525))
 
 
-@pytest.mark.parametrize("points", ["visible", "consensus", "all", "adjacent", "child"])
-def test_view_depth_joints_moves_surface_joints_of_a_two_bone_limb_to_its_axis(points):
+def test_view_depth_joints_moves_surface_joints_of_a_two_bone_limb_to_its_axis():
     depth, r = 2.0, 0.06
     rest = _ray_cast_cylinder(depth, r, (-0.4, 0.4))
     labels = (rest[:, 0] > 0).astype(np.int64)  # bone 0 (root) x < 0, bone 1 x > 0
@@ -289,18 +291,18 @@ def test_view_depth_joints_moves_surface_joints_of_a_two_bone_limb_to_its_axis(p
     frames = [rest.copy() for _ in range(F)]
     registered = np.repeat(rest[None], F, axis=0)
     out, shift = view_depth_joints(frames, registered, labels, parent, joints, R, T,
-                                   np.zeros(3), n_frames=3, points=points)
+                                   np.zeros(3), n_frames=3)
     assert out[:, 2] == pytest.approx([depth, depth], abs=0.1 * r)
     np.testing.assert_allclose(shift, np.linalg.norm(out - joints, axis=1), atol=1e-12)
-    # "back" never moves a joint towards the camera
+    # joints behind the axis move forwards to it
     deep = joints + [0.0, 0.0, 2 * r]
     out_b, shift_b = view_depth_joints(frames, registered, labels, parent, deep, R, T,
-                                       np.zeros(3), points=points, direction="back")
-    assert np.all(shift_b == 0.0)
-    np.testing.assert_array_equal(out_b, deep)
+                                       np.zeros(3), n_frames=3)
+    assert np.all(shift_b < 0)
+    assert out_b[:, 2] == pytest.approx([depth, depth], abs=0.1 * r)
 
 
-def test_view_depth_joints_consensus_ignores_an_occluder_that_misleads_the_whole_view():
+def test_view_depth_joints_ignores_an_occluder_that_misleads_the_whole_view():
     depth, r = 2.0, 0.06
     pixel = 1.0 / 525
     limb = _ray_cast_cylinder(depth, r, (-0.4, 0.4), pixel)
@@ -320,14 +322,23 @@ def test_view_depth_joints_consensus_ignores_an_occluder_that_misleads_the_whole
     T = np.zeros((F, 3, 3))
     args = ([frame] * F, np.repeat(rest[None], F, axis=0), labels, parent, joints, R, T,
             np.zeros(3))
-    _, shift_all = view_depth_joints(*args, points="all")
-    assert shift_all[1] < -0.2  # the whole view puts joint 1 at the bar's depth
-    for points in ("consensus", "visible"):  # "visible": joint 1's bone is not what is seen
-        out, shift = view_depth_joints(*args, points=points)
-        assert shift[1] == 0.0  # its own bones disagree: it stays
-        assert out[0, 2] == pytest.approx(depth, abs=0.1 * r)  # the visible joint still moves
-    with pytest.raises(ValueError, match="points"):
-        view_depth_joints(*args, points="nearest")
+    # the whole view's reading puts joint 1 at the bar's depth
+    assert _whole_view_offset(frame, joints[1]) < -0.2
+    out, shift = view_depth_joints(*args)
+    assert shift[1] == 0.0  # joint 1's bone is not what is seen, its own bones disagree: stays
+    assert out[0, 2] == pytest.approx(depth, abs=0.1 * r)  # the visible joint still moves
+
+
+def _whole_view_offset(points: np.ndarray, joint: np.ndarray) -> float:
+    """:func:`chord_depth_offset` of ``joint`` read from all of ``points`` (one frame seen from
+    the origin, the parameters of :func:`view_depth_joints`' defaults): the chord rule on the
+    whole view, metres along the ray."""
+    axis = points.mean(0) / np.linalg.norm(points.mean(0))
+    uv = image_coordinates(points, np.zeros(3), axis)[0]
+    spacing = float(np.median(cKDTree(uv).query(uv, k=2)[0][:, 1]))
+    size = float(np.linalg.norm(np.ptp(points, axis=0)))
+    return chord_depth_offset(points, joint, np.zeros(3), axis, 0.02 * size, 4.5 * spacing,
+                              6.0 * spacing)
 
 
 def _plate(depth: float, half: float, pixel: float = 1.0 / 525) -> np.ndarray:
@@ -372,33 +383,32 @@ def _depth_args(points: np.ndarray, labels: np.ndarray, joints: np.ndarray, F: i
             joints, np.tile(np.eye(3), (F, B, 1, 1)), np.zeros((F, B, 3)), np.zeros(3))
 
 
-def test_view_depth_joints_visible_trusts_the_whole_view_of_a_seen_round_part():
+def test_view_depth_joints_trusts_the_whole_view_of_a_seen_round_part():
     # a thick round limb whose joint-1 bone labels only a strip along it: the bone's own
     # silhouette is narrow and reads the joint forwards, so the three readings disagree in
-    # sign and the consensus leaves the joint; the bone is what the camera sees at the joint's
-    # pixel and the part is round, so "visible" takes the whole view's reading: the axis
+    # sign; the bone is what the camera sees at the joint's pixel and the part is round, so
+    # the whole view's reading is taken: the axis
     depth, r = 2.0, 0.15
     limb = _ray_cast_cylinder(depth, r, (-0.5, 0.5))
     joints = np.array([[-0.2, 0.0, depth - r], [0.1, 0.0, depth - r + 0.03]])
-    args = _depth_args(limb, _strip_labelled(limb, 0.01), joints)
-    _, shift_c = view_depth_joints(*args, points="consensus")
-    _, shift_child = view_depth_joints(*args, points="child")
-    out, shift = view_depth_joints(*args, points="visible")
-    assert shift_child[1] < 0 < shift[1] and shift_c[1] == 0.0
+    labels = _strip_labelled(limb, 0.01)
+    args = _depth_args(limb, labels, joints)
+    assert _whole_view_offset(limb[labels == 1], joints[1]) < 0  # its own bone: forwards
+    out, shift = view_depth_joints(*args)
+    assert shift[1] > 0
     assert out[1, 2] == pytest.approx(depth, abs=0.1 * r)
 
 
-def test_view_depth_joints_visible_keeps_the_consensus_on_a_flat_part():
+def test_view_depth_joints_keeps_a_joint_on_a_flat_part():
     # the same labels on a flat plate: wide in the image but thin along the ray, so the whole
     # view's chord would push the joint far back; the flat depth profile vetoes it, and any
-    # other chord reading with it (the joint stays)
+    # other chord reading with it (the joint stays); without the veto the readings' sign
+    # consensus moves it by less than 2 cm
     depth = 2.0
     plate = _plate(depth, 0.15)
     joints = np.array([[-0.1, 0.0, depth], [0.05, 0.0, depth + 0.01]])
     args = _depth_args(plate, _strip_labelled(plate, 0.01), joints)
-    _, shift_all = view_depth_joints(*args, points="all")
-    _, shift_c = view_depth_joints(*args, points="consensus")
-    _, shift = view_depth_joints(*args, points="visible")
-    assert shift_all[1] > 0.1
-    assert shift[1] == 0.0 and abs(shift_c[1]) < 0.02
-    assert view_depth_joints(*args, points="visible", flat_roundness=-1.0)[1][1] == shift_c[1]
+    assert _whole_view_offset(plate, joints[1]) > 0.1
+    _, shift = view_depth_joints(*args)
+    assert shift[1] == 0.0
+    assert abs(view_depth_joints(*args, flat_roundness=-1.0)[1][1]) < 0.02

@@ -54,7 +54,6 @@ def __getattr__(name: str):
     raise AttributeError(f"module 'pointrig' has no attribute {name!r}")
 
 __all__ = [
-    "__version__",
     "ConfigError",
     "ConvergenceError",
     "EmptyFrameError",
@@ -73,6 +72,7 @@ __all__ = [
     "StructureConfig",
     "StructureResult",
     "TrackingLostError",
+    "__version__",
     "extract_structure",
     "learn_joints",
     "load_config",

@@ -176,9 +176,9 @@ class DeformGraph:
     ``rest (M, 3)``, ``nodes (J, 3)``, ``pn_idx (M, k) int64`` / ``pn_w (M, k)`` (nodes driving
     each point and weights, normalised per row), ``edges (E, 2) int64`` directed ``(j, k)``,
     ``k in N(n_j)`` for Eq. 6. Node transforms are ``R (J, 3, 3)``, ``T (J, 3)``.
-    ``normals (M, 3)`` (optional) are unit rest-pose surface normals: with them and
-    ``register_frame(..., x_normals=(N, 3), kappa>0)`` each posterior carries the von
-    Mises-Fisher factor ``exp(kappa (n_i . n~_m - 1))``.
+    ``normals (M, 3)`` (optional) are unit rest-pose surface normals: with them,
+    ``FrameParams(kappa > 0)`` and ``register_frame(..., x_normals=(N, 3))`` each posterior
+    carries the von Mises-Fisher factor ``exp(kappa (n_i . n~_m - 1))``.
     """
 
     n_nodes: int
@@ -204,11 +204,9 @@ class DeformGraph:
         r_pre: npt.NDArray[np.float64], t_pre: npt.NDArray[np.float64],
         p1: npt.NDArray[np.float64], px: npt.NDArray[np.float64],
         sum_x2: float, n_p: float, sigma2: float, beta_smooth: float, beta_small: float,
-        robust: float = 0.0,
     ) -> float:
-        """Eq. 8a from E-step statistics (``gmm_estep``), E_small relative to ``(r_pre, t_pre)``;
-        ``robust = c > 0``: E_smooth with the Cauchy loss ``s^2 log(1 + |r|^2 / s^2)`` per
-        edge, ``s = c * |n_k - n_j|``."""
+        """Eq. 8a from E-step statistics (``gmm_estep``), E_small relative to
+        ``(r_pre, t_pre)``."""
     def node_update(
         self, j: int, r: npt.NDArray[np.float64], t: npt.NDArray[np.float64],
         r_pre: npt.NDArray[np.float64], t_pre: npt.NDArray[np.float64],
@@ -220,20 +218,38 @@ class DeformGraph:
         self, r: npt.NDArray[np.float64], t: npt.NDArray[np.float64],
         p1: npt.NDArray[np.float64], px: npt.NDArray[np.float64],
         sigma2: float, beta_smooth: float, beta_small: float,
-        damping: float = 0.0, cg_tol: float = 1e-8, cg_max: int = 500, robust: float = 0.0,
+        damping: float = 0.0, cg_tol: float = 1e-8, cg_max: int = 500,
     ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-        """One joint Gauss-Newton step on all nodes: new ``R, T`` (``robust > 0``: one IRLS
-        step of the Cauchy E_smooth, edge weights fixed at the input state)."""
+        """One joint Gauss-Newton step on all nodes: new ``R, T``."""
     def register_frame(
-        self, x: npt.NDArray[np.float64], r: npt.NDArray[np.float64], t: npt.NDArray[np.float64], *,
-        sigma2_start: float, omega: float, beta_smooth: float, beta_relative: bool,
-        beta_small: float, sigma2_min: float, anneal: float, anneal_floor: float,
-        max_iter: int, tol: float, cutoff: float | None, single: bool, rigid_iters: int,
-        solver: str, damping: float, cg_tol: float, cg_max: int,
-        subsample: float = 0.0, motion_tol: float = 0.0, voxel_min: float = 0.0,
-        robust: float = 0.0, x_normals: npt.NDArray[np.float64] | None = None,
-        kappa: float = 0.0,
+        self, x: npt.NDArray[np.float64], r: npt.NDArray[np.float64],
+        t: npt.NDArray[np.float64], params: FrameParams, *, sigma2_start: float,
+        rigid_iters: int, x_normals: npt.NDArray[np.float64] | None = None,
     ) -> dict:
-        """Algorithm 1 on one frame (see docs/registration.md): dict with ``R``, ``T``,
-        ``points (M, 3)``, ``sigma2``, ``iterations``, ``energy``, ``n_p``, ``n_data``,
-        ``history (iterations, 2)`` = (sigma^2, energy) per iteration."""
+        """Algorithm 1 on one frame ``x (N, 3)`` from node transforms ``r (J, 3, 3)``,
+        ``t (J, 3)`` with the sequence's ``params``, starting at ``sigma2_start`` (m^2) with
+        ``rigid_iters`` leading rigid (Kabsch) iterations; ``x_normals (N, 3)`` are the data
+        normals of the normal agreement (used when ``params`` has ``kappa > 0`` and the graph
+        rest normals).
+        Returns a dict with ``R``, ``T``, ``points (M, 3)``, ``sigma2``, ``iterations``,
+        ``energy``, ``n_p``, ``n_data``, ``history (iterations, 2)`` = (sigma^2, energy) per
+        iteration."""
+
+class FrameParams:
+    """The parameters of :meth:`DeformGraph.register_frame` that stay the same for every frame
+    of a sequence, built once from ``RegistrationConfig`` (see it for the meanings):
+    ``omega`` (Eq. 1), ``beta_smooth`` (absolute, or the ratio lambda with
+    ``beta_relative``), ``beta_small``, ``sigma2_min`` (m^2), the coarse-to-fine ``anneal``
+    factor down to ``anneal_floor`` (m^2), ``max_iter`` and ``tol`` of the EM, ``cutoff``
+    (truncated E-step in sigmas, ``None`` = dense), ``solver`` (``"gauss_newton"`` or
+    ``"sweeps"``, ValueError otherwise), the Gauss-Newton ``damping``, ``cg_tol`` and
+    ``cg_max``, the coarse-data ``subsample`` (0 = full data), the early stop ``motion_tol``
+    (0 = off) and the normal agreement ``kappa`` (0 = off). The E-step runs in float32 with
+    float64 sums."""
+
+    def __init__(
+        self, *, omega: float, beta_smooth: float, beta_relative: bool, beta_small: float,
+        sigma2_min: float, anneal: float, anneal_floor: float, max_iter: int, tol: float,
+        cutoff: float | None, solver: str, damping: float, cg_tol: float, cg_max: int,
+        subsample: float = 0.0, motion_tol: float = 0.0, kappa: float = 0.0,
+    ) -> None: ...

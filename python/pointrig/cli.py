@@ -318,13 +318,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="at most N joints, when you know the subject (an arm: 3, shoulder, "
                         "elbow, wrist); overrides [structure] max_joints (default 0: as many "
                         "as the motion shows)")
-    p.add_argument("--rest-frame", default=None, metavar="N|visible|middle|fit",
+    p.add_argument("--rest-frame", default=None, metavar="N|fit",
                    help="the frame whose pose is the rest pose: an index among the frames used "
-                        "(after --start/--stride), or visible (most surface, near the middle), "
-                        "middle, fit (default: the visible frame unless a frame of another pose "
-                        "registers clearly better, e.g. legs that touch in the visible one); "
-                        "overrides [registration] rest_frame. A frame where no limb touches "
-                        "the body or another limb (a T- or A-pose) gives the best skeleton")
+                        "(after --start/--stride), or fit (default: the frame showing the most "
+                        "surface near the middle, unless a frame of another pose registers "
+                        "clearly better, e.g. legs that touch in the first one); overrides "
+                        "[registration] rest_frame. A frame where no limb touches the body or "
+                        "another limb (a T- or A-pose) gives the best skeleton")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=cmd_extract)
 

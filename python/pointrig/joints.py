@@ -28,36 +28,45 @@ Two variants (``JointsConfig.mode``):
     and the joint positions are solved *jointly with the translations* from the data
     (a linear least-squares problem), plus the ``eta |c - c~|^2`` prior. With the paper's
     alternation, the growing alpha makes every bone rotate about the previous joint, so Eq. 20
-    returns that joint again and the joints barely move; see docs/joints.md for the ablation.
+    returns that joint again and the joints barely move (docs/joints.md).
 """
 
 from __future__ import annotations
 
 import logging
-import os
 import time
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
-from typing import Any, Callable, Protocol, Sequence
+from typing import Any, Protocol
 
 import numpy as np
 
 from . import _core
-from .config import JointsConfig
-from .errors import ConfigError, InputError
+from .config import JointsConfig, pool_size
+from .errors import InputError
 from .kinematics import joint_trajectories, solve_joint_positions
-from .preprocess import chamfer_misfit, estimate_normals, mean_spacing, nearest_distances
-from .view import view_depth_correct
+from .preprocess import (
+    chamfer_misfit,
+    estimate_normals,
+    mean_spacing,
+    nearest_distances,
+)
 
-__all__ = ["JointsResult", "StructureLike", "learn_joints", "posed_rest_points", "e_step",
-           "e_step_numpy", "solve_joints_articulated", "track_bones"]
+__all__ = [
+    "JointsResult",
+    "StructureLike",
+    "e_step",
+    "e_step_numpy",
+    "learn_joints",
+    "posed_rest_points",
+    "solve_joints_articulated",
+    "track_bones",
+]
 
 log = logging.getLogger(__name__)
-_N_THREADS = max(1, min(4, os.cpu_count() or 1))
-#: threads for a tracked frame's hypotheses (:func:`track_bones`; 1 = one after the other)
-_TRACK_WORKERS = 2
 #: subject size (rest bounding-box diagonal, m) the paper's tau_init = 6e-4 m^2 refers to
 _REFERENCE_SIZE = 1.8
 
@@ -125,7 +134,7 @@ class JointsResult:
         )
 
     @classmethod
-    def load(cls, path: str | Path) -> "JointsResult":
+    def load(cls, path: str | Path) -> JointsResult:
         with np.load(path) as z:
             diag = {k[5:]: z[k] for k in z.files if k.startswith("diag_")}
             return cls(
@@ -153,7 +162,6 @@ def e_step(
     X: np.ndarray,
     tau: np.ndarray,
     omega: float,
-    n_neighbors: int = 8,
     radius_sigmas: float | None = 3.5,
     single: bool = False,
     *,
@@ -163,9 +171,8 @@ def e_step(
     """Posteriors of Eq. 4 (form of §6.2) of every frame in one Rust call
     (``_core.lbs_estep_frames``: parallel over frames, each truncated at
     ``radius_sigmas * sqrt(tau^t)``; ``None`` = dense; ``single`` = float32 distances and
-    exponentials with float64 sums).
+    exponentials with float64 sums, as step 3 runs it).
 
-    ``n_neighbors`` is only used by the numpy reference :func:`e_step_numpy`.
     Shapes: ``frames`` F arrays ``(N_t, 3)``; ``X (F, M, 3)``; ``tau (F,)`` m^2.
     ``packed`` = ``(V, offsets)`` from :func:`pack_frames` (skips the concatenation).
     ``normals`` = ``(XN (F, M, 3), VN (sum N_t, 3), kappa)``: unit normals of the centroids and
@@ -224,7 +231,8 @@ def e_step_numpy(
 
     Truncated: each observed point only sees its ``n_neighbors`` nearest deformed points within
     ``radius_sigmas * sqrt(tau^t)``; the outlier term ``(2 pi tau)^{3/2} omega M / ((1-omega) N)``
-    is exact. Numpy/scipy reference of :func:`e_step` (k nearest only).
+    is exact. Numpy/scipy reference of :func:`e_step` (k nearest only), one frame after the
+    other.
 
     Parameters
     ----------
@@ -265,8 +273,8 @@ def e_step_numpy(
         Np[t] = pt1.sum()
         sxx[t] = float(pt1 @ np.einsum("ij,ij->i", V, V))
 
-    with ThreadPoolExecutor(max_workers=_N_THREADS) as ex:
-        list(ex.map(one, range(F)))
+    for t in range(F):
+        one(t)
     return EStats(P1, PX, Np, sxx)
 
 
@@ -481,15 +489,15 @@ def track_bones(
     E_Register), joint-constrained bone rotations (the articulated sweep of Eqs. 23-26) and
     the root translation, ``tau`` from ``4/3`` of the mean squared nearest-point distance of
     the prediction (capped at ``track_tau_max``, m^2 at 1.8 m, scaled by size^2) annealed by
-    ``track_anneal`` to ``tau_init``, then Eq. 12. With ``track_from_structure`` each frame is
-    also fitted from step 2's own pose of it, and the fit with the smaller symmetric chamfer
+    ``track_anneal`` to ``tau_init``, then Eq. 12. Each frame is also fitted from step 2's own
+    pose of it, and the fit with the smaller symmetric chamfer
     misfit to the frame (template to data plus data to template, each distance truncated at
     ``3 sqrt(track_tau_max)``) is kept: the prediction recovers what step 1 lost, step 2's pose
     keeps what step 1 got right (a rigid-bone prediction drifts on smoothly bending bodies).
     The prediction itself gives way to the previous frame's pose when that pose's misfit is
     below ``track_predict_check`` times the prediction's (after a jump the prediction repeats
-    it). A frame's two fits run side by side on two threads (the same result as one after the
-    other).
+    it). A frame's two fits run side by side on ``config.workers`` threads (the same result as
+    one after the other).
     Frames without points keep the prediction.
 
     Parameters
@@ -552,9 +560,8 @@ def track_bones(
             if use_normals and vn is not None:
                 xn = np.einsum("mab,mb->ma", Rt[labels], normals[0])
                 nrm = (xn[None], vn, config.track_normal_kappa)
-            es = e_step([v], X[None], np.array([tau]), config.omega, config.estep_neighbors,
-                        config.estep_radius_sigmas, config.estep_single, packed=packed,
-                        normals=nrm)
+            es = e_step([v], X[None], np.array([tau]), config.omega,
+                        config.estep_radius_sigmas, True, packed=packed, normals=nrm)
             a = es.P1[0] / tau
             if config.gmm_density_normalize:
                 a = a * (M / len(v))
@@ -580,7 +587,7 @@ def track_bones(
     order = [rest_index] + list(range(rest_index + 1, F)) + list(range(rest_index - 1, -1, -1))
     # a frame's hypotheses are independent fits: they run side by side (the native calls and
     # the nearest-distance queries release the GIL), each with the same arithmetic as alone
-    with ThreadPoolExecutor(max_workers=_TRACK_WORKERS) as pool:
+    with ThreadPoolExecutor(max_workers=pool_size(config.workers, 2)) as pool:
         for done, t in enumerate(order, start=1):
             if progress is not None and done > 1:
                 progress(done - 1, F)
@@ -596,10 +603,9 @@ def track_bones(
                                                  config.track_velocity))
                 else:
                     starts.append((R[p1].copy(), T[p1].copy()))
-                if config.track_from_structure:
-                    # second hypothesis: step 2's own pose of this frame (the registration)
-                    starts.append((np.array(structure.R[t], dtype=float),
-                                   np.array(structure.T[t], dtype=float)))
+                # second hypothesis: step 2's own pose of this frame (the registration)
+                starts.append((np.array(structure.R[t], dtype=float),
+                               np.array(structure.T[t], dtype=float)))
             if len(v) == 0:
                 Rt, Tt = starts[0]
                 R[t] = Rt
@@ -630,31 +636,6 @@ def track_bones(
 
 
 # -------------------------------------------------------------------------- main loop
-
-
-def _weight_crossing_prior(Q: np.ndarray, W: np.ndarray, parent: np.ndarray,
-                           fallback: np.ndarray, min_mass: float = 0.5,
-                           view_camera: np.ndarray | None = None,
-                           view_quantile: float = 0.0,
-                           view_method: str = "quantile") -> np.ndarray:
-    """Prior joint targets where the blend weights of each edge cross: the centroid of the rest
-    points weighted by ``w_mk * w_mp`` (child k, parent p), which peaks at ``w = 1/2``, moved
-    back along the camera ray (:func:`pointrig.view.view_depth_correct`, weights ``w_mk w_mp``)
-    when ``view_camera`` is given. Edges with less than ``min_mass`` total product weight keep
-    ``fallback`` (c~)."""
-    out = fallback.copy()
-    for k, p in enumerate(parent):
-        if p < 0:
-            continue
-        rho = W[:, k] * W[:, p]
-        if rho.sum() >= min_mass:
-            out[k] = rho @ Q / rho.sum()
-            if view_camera is not None:
-                on = rho > 0
-                out[k] = view_depth_correct(Q[on], rho[on], out[k], view_camera, view_quantile,
-                                            view_method)
-    return out
-
 
 
 def _dense_to_sparse(W: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -773,26 +754,9 @@ def learn_joints(
     Raises
     ------
     InputError
-        On inconsistent shapes or non-finite input.
-    ConfigError
-        On invalid ``track_*`` parameters (the choices are checked by JointsConfig).
+        On inconsistent shapes or non-finite input, or a ``rest_index`` outside the frames.
     """
-    cfg = config or JointsConfig()  # its choices (mode, init, ...) were checked when made
-    if cfg.init == "track" and not (cfg.track_iterations >= 1 and 0 < cfg.track_anneal <= 1
-                                    and cfg.track_tau_max > 0 and cfg.track_velocity >= 0
-                                    and 0 <= cfg.track_predict_check <= 1
-                                    and cfg.track_normal_kappa >= 0 and cfg.normal_radius > 0):
-        raise ConfigError("joints: track_iterations >= 1, 0 < track_anneal <= 1, "
-                          "track_tau_max > 0, track_velocity >= 0, "
-                          "0 <= track_predict_check <= 1, track_normal_kappa >= 0 and "
-                          "normal_radius > 0 are required")
-    if isinstance(cfg.max_iterations, bool) or not isinstance(cfg.max_iterations, int) \
-            or cfg.max_iterations < 0:
-        raise ConfigError(f"joints: max_iterations must be an integer >= 0 (0 = step 2's "
-                          f"skeleton as tracked, no EM), got {cfg.max_iterations!r}")
-    if not cfg.rotation_smoothing >= 0:
-        raise ConfigError(f"joints: rotation_smoothing must be >= 0, got "
-                          f"{cfg.rotation_smoothing}")
+    cfg = config or JointsConfig()
     Q = np.ascontiguousarray(rest_points, dtype=np.float64)
     Y = np.ascontiguousarray(registered, dtype=np.float64)
     frames = [np.ascontiguousarray(v, dtype=np.float64) for v in frames]
@@ -807,9 +771,9 @@ def learn_joints(
     R = np.array(structure.R, dtype=float)
     T = np.array(structure.T, dtype=float)
     t_track = 0.0
-    # observed points of the E-steps (tracking and EM): subsampled per frame, once
-    obs_all = (subsample_frames(frames, cfg.estep_max_points)
-               if cfg.use_gmm or cfg.init == "track" else [])
+    # observed points of the E-steps (tracking and EM): subsampled per frame (the statistics
+    # scale with N_t, which gmm_density_normalize divides out), packed once for the kernel
+    obs = subsample_frames(frames, cfg.estep_max_points)
     if cfg.init == "track":
         if rest_index is None:
             rest_index = int(np.argmin(((Y - Q[None]) ** 2).sum(axis=(1, 2))))
@@ -821,9 +785,9 @@ def learn_joints(
             radius = cfg.normal_radius * mean_spacing(Q)
             track_normals = (
                 estimate_normals(Q, radius, source=frames[int(rest_index)]),
-                [estimate_normals(o, radius, source=v) for o, v in zip(obs_all, frames)],
+                [estimate_normals(o, radius, source=v) for o, v in zip(obs, frames)],
             )
-        R, T = track_bones(obs_all, Q, structure, int(rest_index), cfg, track_progress,
+        R, T = track_bones(obs, Q, structure, int(rest_index), cfg, track_progress,
                            track_normals)
         t_track = time.perf_counter() - t_tr
     joints = np.array(structure.joints_rest, dtype=float)
@@ -835,10 +799,6 @@ def learn_joints(
     articulated = cfg.mode == "articulated"
     c_prior = c_tilde.copy()
     c_prior[root] = joints[root]
-    # single-view depth correction chosen by step 2 (pointrig.view), applied to the prior too
-    view_camera = getattr(structure, "view_camera", None)
-    view_quantile = float(getattr(structure, "view_quantile", 0.0))
-    view_method = str(getattr(structure, "view_method", "quantile"))
 
     def skin_all(W_, R_, T_):
         idx, w = _dense_to_sparse(W_, K)
@@ -858,35 +818,21 @@ def learn_joints(
                 adj[k_, p_] = adj[p_, k_] = True
         allowed = np.ascontiguousarray(adj[np.asarray(structure.labels)])
     X = skin_all(W, R, T)
-    # observed points used by the E-step: subsampled per frame (the statistics scale with N_t,
-    # which gmm_density_normalize divides out), packed once for the Rust kernel
-    obs = obs_all if cfg.use_gmm else []
-    packed = pack_frames(obs) if cfg.use_gmm else None
+    packed = pack_frames(obs)
+    n_obs = np.array([len(v) for v in obs], float)
     joints0 = joints.copy()
     prev_total = None
     it = 0
     for it in range(1, cfg.max_iterations + 1):
         t0 = time.perf_counter()
         # ---- E-step (Eq. 4 form) and the reduced data term
-        if cfg.use_gmm:
-            st = e_step(obs, X, tau, cfg.omega, cfg.estep_neighbors, cfg.estep_radius_sigmas,
-                        cfg.estep_single, packed=packed)
-            a_g = st.P1 / tau[:, None]
-            if cfg.gmm_density_normalize:
-                # one unit of evidence per template point, not per observed point (N_t / M)
-                a_g = a_g * (M / np.array([len(v) for v in obs], float))[:, None]
-            if cfg.gmm_robust > 0 and zeta > 0:
-                # down-weight GMM targets that disagree with the registration (occlusion,
-                # mismatched surfaces): Cauchy weight on |PX/P1 - y| in units of sqrt(tau)
-                zg = st.PX / np.maximum(st.P1, 1e-300)[..., None]
-                r2 = np.sum((zg - Y) ** 2, axis=2) / (cfg.gmm_robust ** 2 * tau[:, None])
-                a_g = a_g / (1.0 + r2)
-            a = a_g + zeta
-            num = a_g[..., None] * (st.PX / np.maximum(st.P1, 1e-300)[..., None]) + zeta * Y
-        else:
-            st = None
-            a = np.full((F, M), zeta)
-            num = zeta * Y
+        st = e_step(obs, X, tau, cfg.omega, cfg.estep_radius_sigmas, True, packed=packed)
+        a_g = st.P1 / tau[:, None]
+        if cfg.gmm_density_normalize:
+            # one unit of evidence per template point, not per observed point (N_t / M)
+            a_g = a_g * (M / n_obs)[:, None]
+        a = a_g + zeta
+        num = a_g[..., None] * (st.PX / np.maximum(st.P1, 1e-300)[..., None]) + zeta * Y
         safe = np.where(a > 0, a, 1.0)
         z = np.where((a > 0)[..., None], num / safe[..., None], X)
         a = np.ascontiguousarray(a)
@@ -905,12 +851,6 @@ def learn_joints(
         idx, w = _dense_to_sparse(W, K)
 
         # ---- bones (Eqs. 23-26) and joints (Eq. 20)
-        if articulated and cfg.prior_from_weights and cfg.update_weights:
-            # W changes only with the weight updates: step 2's one-hot W has no crossing
-            # mass, so without them the prior stays c~ (already depth-corrected by step 2)
-            c_prior = _weight_crossing_prior(Q, W, parent, c_prior, view_camera=view_camera,
-                                             view_quantile=view_quantile,
-                                             view_method=view_method)
         if articulated:
             joints, T = solve_joints_articulated(Q, W, R, a, z, parent, c_prior,
                                                  cfg.eta * cfg.joint_prior, T[:, root])
@@ -941,12 +881,9 @@ def learn_joints(
 
         # ---- deformed points (Eq. 13) and covariances (Eq. 12 form)
         X = skin_all(W, R, T)
-        if st is not None:
-            e_gmm, ss = _gmm_energy(st, X, tau)
-            tau = np.maximum(ss / (3 * np.maximum(st.Np, 1e-12)), cfg.tau_min)
-            e_gmm, _ = _gmm_energy(st, X, tau)
-        else:
-            e_gmm = 0.0
+        e_gmm, ss = _gmm_energy(st, X, tau)
+        tau = np.maximum(ss / (3 * np.maximum(st.Np, 1e-12)), cfg.tau_min)
+        e_gmm, _ = _gmm_energy(st, X, tau)
         e_reg = float(np.sum((Y - X) ** 2))
         e_joint_cons = _joint_term(R, T, joints, parent)
         nr = parent >= 0
@@ -983,7 +920,7 @@ def learn_joints(
             break
         prev_total = total
     diag.pop("_prev_joints", None)
-    if it > 0 and not cfg.update_weights and cfg.final_weights:
+    if it > 0 and not cfg.update_weights:
         # blend weights for the output only (Eq. 22 once, with the last data term)
         Rf, Tf = _flat_rt(R, T)
         idx, w, _ = _core.lbs_fit_weights(Q, Rf, Tf, a, zf, F, K, allowed)

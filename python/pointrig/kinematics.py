@@ -17,8 +17,13 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = [
-    "skin", "solve_joint_positions", "joint_trajectories", "swing_twist", "twist_angles",
-    "minimal_twist", "tree_order",
+    "joint_trajectories",
+    "minimal_twist",
+    "skin",
+    "solve_joint_positions",
+    "swing_twist",
+    "tree_order",
+    "twist_angles",
 ]
 
 
@@ -194,9 +199,8 @@ def minimal_twist(R: np.ndarray, T: np.ndarray, joints_rest: np.ndarray,
     """Bone transforms with no twist of a limb about its own axis beyond what it had at rest.
 
     A round limb's rotation about its own axis is a near null mode of a correspondence-free
-    fit to one-sided depth data (docs/registration.md "Sessions 44-45"): the fitted bones roll by
-    tens of degrees (p90 60-120 deg on the arms of the procedural human) while every joint
-    stays in place. This sets, for each non-root bone whose axis is defined and whose points
+    fit to one-sided depth data (docs/registration.md): the fitted bones roll by tens of
+    degrees while every joint stays in place. This sets, for each non-root bone whose axis is defined and whose points
     are elongated along it, the rotation to its parent's (already corrected) rotation times
     the smallest rotation that gives the axis its fitted direction; the translation keeps the
     head joint in place. The axis runs from the bone's head joint to its only child's head

@@ -18,7 +18,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
@@ -32,8 +32,7 @@ from .sequence import PointSequence, check_units
 from .skeleton import Skeleton
 from .view import view_depth_joints
 
-__all__ = ["ExtractResult", "extract", "build_skeleton", "output_skeleton",
-           "retrack_structure"]
+__all__ = ["ExtractResult", "build_skeleton", "extract", "output_skeleton"]
 
 log = logging.getLogger(__name__)
 
@@ -112,51 +111,6 @@ def _split_weights(weights: np.ndarray, labels: np.ndarray, source: np.ndarray) 
     return out
 
 
-def retrack_structure(structure: Any, joints: Any, frames: Sequence[np.ndarray],
-                      registered: np.ndarray, config: PipelineConfig) -> Any | None:
-    """Step 2's structure with step 3's joints moved to their parts' axis depth as its joints,
-    for one more step 3 about them (``[joints] retrack = "chord"``), or ``None`` (no retrack).
-
-    The tracker of step 3 (:func:`pointrig.joints.track_bones`) holds the structure's joints
-    fixed as the bones' pivots, and the EM starts from them. Step 2's joints lie in front of
-    the parts' axes along the camera ray (docs/joints.md "Session 42"); here they are replaced
-    by step 3's joints moved along the ray by the output depth pass
-    (:func:`pointrig.view.view_depth_joints` with ``[joints] depth_points``,
-    ``depth_direction`` and ``depth_frames``). Everything else of the structure (segmentation,
-    tree, motions, joint prior ``c_tilde``) is kept. docs/joints.md ("Session 59").
-
-    Parameters
-    ----------
-    structure
-        Step 2's result (:class:`pointrig.structure.StructureResult`) that step 3 ran on.
-    joints
-        That step 3's result (:class:`pointrig.joints.JointsResult`): weights ``(M, B)``,
-        ``joints_rest (B, 3)`` (metres), ``R (F, B, 3, 3)``, ``T (F, B, 3)``.
-    frames
-        The ``F`` observed clouds ``(N_t, 3)``, camera frame, metres.
-    registered
-        ``(F, M, 3)`` the registration's points that step 3 ran on, metres.
-    config
-        The pipeline's parameters (``[joints]`` is read).
-
-    Returns
-    -------
-    StructureResult or None
-        The structure with the moved joints; ``None`` when ``retrack`` is ``"off"`` or the
-        input is not one view (``structure.view_camera`` is ``None``).
-    """
-    cfg = config.joints
-    camera = getattr(structure, "view_camera", None)
-    if cfg.retrack != "chord" or camera is None:
-        return None
-    labels = np.argmax(joints.weights, axis=1)
-    moved, _ = view_depth_joints(frames, registered, labels, structure.bone_parent,
-                                 joints.joints_rest, joints.R, joints.T, camera,
-                                 n_frames=cfg.depth_frames, points=cfg.depth_points,
-                                 direction=cfg.depth_direction)
-    return replace(structure, joints_rest=moved)
-
-
 def output_skeleton(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np.ndarray,
                     joints_rest: np.ndarray, R: np.ndarray, T: np.ndarray,
                     weights: np.ndarray | None, config: PipelineConfig,
@@ -173,7 +127,7 @@ def output_skeleton(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np
     and a joint where a leaf bone bends (:func:`pointrig.structure.split_bent_leaves`,
     ``[structure] leaf_split_*``; the new bones take their source bone's motion), the joints
     to their parts' axis depth along the camera ray (``[joints] joint_depth``,
-    :func:`pointrig.view.view_depth_joints`, docs/joints.md "Session 47") and the bones' rolls
+    :func:`pointrig.view.view_depth_joints`) and the bones' rolls
     (``[joints] bone_twist``, :func:`pointrig.kinematics.minimal_twist`), then
     :func:`build_skeleton`.
 
@@ -209,7 +163,7 @@ def output_skeleton(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np
                                                  config.structure, view_camera)
     if observed is not None:
         # new bones take their source bone's motion and weights: first the separate pieces
-        # of a bone (session 64), then the bends of the leaves (session 57)
+        # of a bone, then the bends of the leaves
         for split in (struct_mod.split_disconnected_bones, struct_mod.split_bent_leaves):
             labels, parent, joints_rest, source = split(rest_points, labels, parent,
                                                         joints_rest, observed[1],
@@ -223,8 +177,7 @@ def output_skeleton(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np
         t0 = time.perf_counter()
         joints_rest, _ = view_depth_joints(
             observed[0], observed[1], labels, parent, joints_rest, R, T, view_camera,
-            n_frames=config.joints.depth_frames, points=config.joints.depth_points,
-            direction=config.joints.depth_direction)
+            n_frames=config.joints.depth_frames)
         if timings is not None:
             timings["joint_depth"] = time.perf_counter() - t0
     if observed is not None and config.joints.bone_twist == "minimal":
@@ -301,7 +254,7 @@ def extract(
             if cached.key == reg_mod.cache_key(seq, config.registration):
                 reg = cached
                 log.info("reusing registration checkpoint %s", ckpt)
-        except Exception as exc:  # a stale or damaged checkpoint is recomputed, not fatal
+        except Exception as exc:  # noqa: BLE001 - a stale or damaged checkpoint is recomputed
             log.warning("ignoring registration checkpoint %s: %s", ckpt, exc)
     reused = reg is not None
     if reg is None:
@@ -330,18 +283,17 @@ def extract(
         # ---- step 3: joint learning ------------------------------------------------------
         rest_index = reg.params.get("rest_frame_index") if reg.params else None
 
-        def step3(r: Any, structure: Any, what: str = "") -> Any:
+        def step3(r: Any, structure: Any) -> Any:
             t0 = time.perf_counter()
             out3 = joints_mod.learn_joints(
                 seq.frames, r.rest_points, r.points, structure, config.joints,
-                progress=report("joints" + what),
-                rest_index=None if rest_index is None else int(rest_index),
-                track_progress=report("tracking" + what))
+                progress=report("joints"), rest_index=None if rest_index is None
+                else int(rest_index), track_progress=report("tracking"))
             timings["joints"] = timings.get("joints", 0.0) + time.perf_counter() - t0
             return out3
 
         jr = step3(reg, st)
-        # ---- refinement from the skeleton (docs/registration.md "Session 26") ----------
+        # ---- refinement from the skeleton (RegistrationConfig.refine_rounds) -------------
         for rnd in range(config.registration.refine_rounds):
             t0 = time.perf_counter()
             posed = joints_mod.posed_rest_points(reg.rest_points, st.labels, jr.R, jr.T)
@@ -357,11 +309,6 @@ def extract(
             jr = step3(refined, st)
             result.structure = st
             result.refined_registration = refined
-        # ---- the final step 3 once more about depth-corrected pivots (session 59) --------
-        last = result.refined_registration or reg
-        st_pivots = retrack_structure(st, jr, seq.frames, last.points, config)
-        if st_pivots is not None:
-            jr = step3(last, st_pivots, " (pivots)")
         result.joints = jr
         weights, labels = jr.weights, np.argmax(jr.weights, axis=1)
         joints_rest, R, T = jr.joints_rest, jr.R, jr.T

@@ -26,20 +26,20 @@ if TYPE_CHECKING:
     from .sequence import PointSequence
 
 __all__ = [
-    "remove_statistical_outliers",
-    "remove_sparse_points",
-    "remove_sparse_frames",
-    "surface_cover",
-    "mls_project",
-    "farthest_point_sampling",
-    "chamfer_misfit",
-    "nearest_distances",
-    "knn_graph",
-    "rest_surface",
     "BackgroundPlane",
     "BackgroundReport",
+    "chamfer_misfit",
+    "farthest_point_sampling",
     "find_background_planes",
+    "knn_graph",
+    "mls_project",
+    "nearest_distances",
     "remove_background",
+    "remove_sparse_frames",
+    "remove_sparse_points",
+    "remove_statistical_outliers",
+    "rest_surface",
+    "surface_cover",
 ]
 
 log = logging.getLogger(__name__)
@@ -75,8 +75,8 @@ def remove_sparse_points(points: np.ndarray, k: int = 10, ratio: float = 4.0) ->
     sparse curtain up to tens of centimetres behind each silhouette edge) and uniform outliers
     lie 5-10x farther apart. :func:`remove_statistical_outliers` thresholds at ``mean + ratio
     x std`` of a distribution these points inflate themselves and keeps about half of them;
-    farthest-point sampling then picks them first, since each is far from every other point
-    (docs/registration.md, "Session 30"). The median is not moved by a few percent of them.
+    farthest-point sampling then picks them first, since each is far from every other point.
+    The median is not moved by a few percent of them.
 
     Parameters
     ----------
@@ -101,8 +101,8 @@ def remove_sparse_points(points: np.ndarray, k: int = 10, ratio: float = 4.0) ->
     return points[dk <= ratio * np.median(dk)]
 
 
-def remove_sparse_frames(seq: "PointSequence", k: int = 10, ratio: float = 4.0,
-                         min_points: int = 10) -> tuple["PointSequence", np.ndarray]:
+def remove_sparse_frames(seq: PointSequence, k: int = 10, ratio: float = 4.0,
+                         min_points: int = 10) -> tuple[PointSequence, np.ndarray]:
     """:func:`remove_sparse_points` on every frame of a sequence.
 
     Parameters
@@ -648,8 +648,8 @@ def _connected_pieces(points: np.ndarray, radius: float) -> np.ndarray:
 
 def connected_pieces_exact(points: np.ndarray, radius: float) -> np.ndarray:
     """Reference for :func:`_connected_pieces`: connected-piece labels ``(N,)`` of the exact
-    graph of every point pair within ``radius`` metres (the search before session 22; the tests
-    and ``benchmarks/bench_background.py`` compare against it)."""
+    graph of every point pair within ``radius`` metres (the tests and
+    ``benchmarks/bench_background.py`` compare against it)."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
@@ -709,8 +709,8 @@ def _keep_near_largest(points: np.ndarray, radius: float, reach: float,
     return keep
 
 
-def remove_background(seq: "PointSequence", *, seed: int = 0,
-                      **plane_options: Any) -> tuple["PointSequence", BackgroundReport]:
+def remove_background(seq: PointSequence, *, seed: int = 0,
+                      **plane_options: Any) -> tuple[PointSequence, BackgroundReport]:
     """Remove static floor / wall planes and what they leave stranded, from every frame.
 
     A consumer depth camera sees the room as well as the subject; the paper (§3) crops it by

@@ -7,9 +7,11 @@ across frames. The E-step (Eq. 4), the M-step solvers (the paper's node sweeps, 
 or a joint Gauss-Newton step) and sigma^2 (Eq. 12) run in Rust (``pointrig._core``).
 
 Deviations from the plain §4 (each selectable in :class:`~pointrig.config.RegistrationConfig`,
-ablation in docs/registration.md): joint Gauss-Newton M-step, beta_smooth relative to the data
-term, a data-driven coarse sigma^2 start per frame, rigid pre-alignment, constant-velocity
-prediction, a sigma^2 floor and tracking-loss detection with a coarse retry.
+whose ``paper()`` turns them off; derivations in docs/registration.md): joint Gauss-Newton
+M-step, beta_smooth relative to the data term, a data-driven coarse sigma^2 start per frame,
+rigid pre-alignment, constant-velocity prediction, normal agreement, a sigma^2 floor,
+tracking-loss detection with a coarse retry, the choice of the rest frame and the refinement
+from the skeleton (:func:`refine_registration`).
 """
 
 from __future__ import annotations
@@ -18,8 +20,8 @@ import dataclasses
 import hashlib
 import json
 import logging
-from collections.abc import Callable, Sequence
 import threading
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,24 +32,24 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from . import _core
-from .config import RegistrationConfig
+from .config import RegistrationConfig, pool_size
 from .errors import ConfigError, FormatError, InputError
 from .io import write_npz
 from .preprocess import (
     chamfer_misfit,
-    nearest_distances,
     estimate_normals,
     farthest_point_sampling,
     knn_graph,
     mean_spacing,
+    nearest_distances,
     rest_surface,
     surface_cover,
 )
 from .sequence import PointSequence
 
 __all__ = [
-    "RegistrationResult",
     "DeformationGraph",
+    "RegistrationResult",
     "build_graph",
     "cache_key",
     "node_transforms_from_points",
@@ -59,11 +61,7 @@ log = logging.getLogger(__name__)
 
 _FORMAT_VERSION = 1
 #: RegistrationConfig fields that do not change :func:`register_sequence`'s result
-_NOT_IN_KEY = frozenset({"refine_rounds"})
-#: threads for :func:`refine_registration`'s independent frames (1 = one after the other)
-_REFINE_WORKERS = 2
-#: threads for :func:`register_sequence`'s forward and backward chains (1 = one after the other)
-_CHAIN_WORKERS = 2
+_NOT_IN_KEY = frozenset({"refine_rounds", "workers"})
 
 
 @dataclass
@@ -115,7 +113,7 @@ class RegistrationResult:
         )
 
     @classmethod
-    def load(cls, path: str | Path) -> "RegistrationResult":
+    def load(cls, path: str | Path) -> RegistrationResult:
         """Read a checkpoint written by :meth:`save`.
 
         Raises
@@ -157,19 +155,14 @@ class DeformationGraph:
 
 
 def build_graph(rest: np.ndarray, config: RegistrationConfig) -> DeformationGraph:
-    """Nodes sampled uniformly from the rest points (farthest-point sampling, or a voxel grid
-    of ``node_spacing``); each point driven by its ``k_point_nodes`` nearest nodes with
+    """``n_nodes`` nodes sampled uniformly from the rest points (farthest-point sampling);
+    each point driven by its ``k_point_nodes`` nearest nodes with
     Sumner et al.'s weights ``(1 - d / d_max)^2`` (normalised); node edges by Euclidean k-NN,
     so separate fragments of a single-view cloud stay connected, minus the edges whose path
     over the rest points is more than ``node_geodesic_ratio`` times longer (parts that only
     touch in the rest pose)."""
     rest = np.ascontiguousarray(rest, dtype=np.float64)
-    if config.node_spacing > 0:
-        keys = np.floor((rest - rest.min(0)) / config.node_spacing).astype(np.int64)
-        _, first = np.unique(keys, axis=0, return_index=True)
-        node_idx = np.sort(first)
-    else:
-        node_idx = farthest_point_sampling(rest, min(config.n_nodes, len(rest)), config.seed)
+    node_idx = farthest_point_sampling(rest, min(config.n_nodes, len(rest)), config.seed)
     nodes = np.ascontiguousarray(rest[node_idx])
     j = len(nodes)
     k = max(1, min(config.k_point_nodes, j))
@@ -231,7 +224,8 @@ def cache_key(seq: PointSequence, config: RegistrationConfig) -> str:
     """SHA-256 of the input frames and the registration parameters (checkpoint key)."""
     h = hashlib.sha256()
     h.update(f"pointrig-registration-v{_FORMAT_VERSION}".encode())
-    # refine_rounds acts after steps 2-3 (refine_registration), not on this result
+    # refine_rounds acts after steps 2-3 (refine_registration), not on this result, and the
+    # worker count does not change it
     params = {k: v for k, v in dataclasses.asdict(config).items() if k not in _NOT_IN_KEY}
     h.update(json.dumps(params, sort_keys=True).encode())
     for f in seq.frames:
@@ -243,11 +237,12 @@ def cache_key(seq: PointSequence, config: RegistrationConfig) -> str:
 
 def resolve_rest_frame(config: RegistrationConfig, n_frames: int,
                        frames: Sequence[np.ndarray] | None = None) -> int:
-    """Index of the rest frame: ``config.rest_frame`` if an int, ``n_frames // 2`` if
-    "middle"; if "visible", of the frames of the middle half of the sequence (``F // 4`` to
-    ``F - F // 4 - 1``) whose points cover within ``config.rest_cover_tolerance`` of the most
-    surface any of them covers (:func:`pointrig.preprocess.surface_cover`), the one nearest
-    the middle (the shortest chain of frame-to-frame registrations).
+    """Index of the rest frame: ``config.rest_frame`` if an index; for "fit", its first
+    candidate (:func:`rest_candidates`): of the frames of the middle half of the sequence
+    (``F // 4`` to ``F - F // 4 - 1``) whose points cover within
+    ``config.rest_cover_tolerance`` of the most surface any of them covers
+    (:func:`pointrig.preprocess.surface_cover`), the one nearest the middle (the shortest
+    chains of frame-to-frame registrations).
 
     Parameters
     ----------
@@ -256,22 +251,18 @@ def resolve_rest_frame(config: RegistrationConfig, n_frames: int,
     n_frames
         ``F``.
     frames
-        The ``F`` frames, ``(N_t, 3)`` metres each; needed for "visible" only.
+        The ``F`` frames, ``(N_t, 3)`` metres each; needed for "fit" only.
 
     Raises
     ------
     ConfigError
-        If the index is outside ``[0, n_frames)`` (its type, an index, "middle" or
-        "visible", is checked when the config is made), or "visible" without ``frames``.
+        If the index is outside ``[0, n_frames)``, or "fit" without ``frames``.
     """
     rf = config.rest_frame
-    if rf == "middle":
-        return n_frames // 2
-    if rf in ("visible", "fit"):  # "fit": its first candidate (see rest_candidates)
+    if rf == "fit":
         if frames is None or len(frames) != n_frames:
-            raise ConfigError(f"[registration] rest_frame {rf!r} needs the frames")
-        good = _cover_candidates(config, frames)
-        return _nearest_middle(good, n_frames)
+            raise ConfigError("[registration] rest_frame 'fit' needs the frames")
+        return _nearest_middle(_cover_candidates(config, frames), n_frames)
     if not 0 <= rf < n_frames:
         raise ConfigError(f"[registration] rest_frame {rf!r} outside 0..{n_frames - 1}")
     return int(rf)
@@ -287,8 +278,8 @@ def _cover_candidates(config: RegistrationConfig, frames: Sequence[np.ndarray]) 
 
 
 def _nearest_middle(good: np.ndarray, n_frames: int) -> int:
-    """The index of ``good`` nearest the middle frame ``n_frames // 2`` (the "visible" frame
-    of :func:`_cover_candidates`' frames: the shortest registration chains)."""
+    """The index of ``good`` nearest the middle frame ``n_frames // 2`` (the shortest
+    registration chains)."""
     return int(good[np.argmin(np.abs(good - n_frames // 2))])
 
 
@@ -296,48 +287,6 @@ def _misfit_cap(config: RegistrationConfig) -> float:
     """Cap (metres) of each distance in the chamfer misfits of step 1: three coarse-start
     standard deviations, ``3 sqrt(sigma2_start_max)``."""
     return 3.0 * float(np.sqrt(config.sigma2_start_max))
-
-
-def _validate(config: RegistrationConfig, n_frames: int) -> None:
-    # the choice parameters (solver, beta_smooth_mode, sigma2_start) are checked when the
-    # config is made (pointrig.config); here the numeric ranges
-    if not (0.0 <= config.omega < 1.0):
-        raise ConfigError("[registration] omega must be in [0, 1)")
-    if config.sigma2_init <= 0 or config.sigma2_min <= 0 or config.sigma2_start_max <= 0:
-        raise ConfigError("[registration] sigma^2 parameters must be positive")
-    if config.rest_candidates < 1 or not 0.0 <= config.rest_fit_margin < 1.0:
-        raise ConfigError(
-            "[registration] rest_candidates must be >= 1 and rest_fit_margin in [0, 1), got "
-            f"{config.rest_candidates!r}, {config.rest_fit_margin!r}"
-        )
-    if config.max_iterations < 1 or config.n_rest_points < 10:
-        raise ConfigError("[registration] max_iterations >= 1 and n_rest_points >= 10 required")
-    if config.rest_sparse_neighbors < 1 or not (config.rest_sparse_ratio == 0
-                                                 or config.rest_sparse_ratio > 1):
-        raise ConfigError(
-            "[registration] rest_sparse_neighbors must be >= 1 and rest_sparse_ratio 0 (off) "
-            f"or > 1, got {config.rest_sparse_neighbors!r}, {config.rest_sparse_ratio!r}"
-        )
-    if not 0.0 <= config.predict_check <= 1.0:
-        raise ConfigError(
-            "[registration] predict_check must be in [0, 1] (0 = always start from the "
-            f"prediction), got {config.predict_check!r}"
-        )
-    if not (np.isfinite(config.normal_kappa) and config.normal_kappa >= 0) \
-            or not (np.isfinite(config.normal_radius) and config.normal_radius > 0):
-        raise ConfigError(
-            "[registration] normal_kappa must be >= 0 (0 = off) and normal_radius > 0, got "
-            f"{config.normal_kappa!r}, {config.normal_radius!r}"
-        )
-    if isinstance(config.refine_rounds, bool) or not isinstance(config.refine_rounds, int) \
-            or config.refine_rounds < 0:
-        raise ConfigError("[registration] refine_rounds must be an integer >= 0 (0 = one "
-                          f"pass, the paper), got {config.refine_rounds!r}")
-    if not (config.node_geodesic_ratio == 0 or config.node_geodesic_ratio >= 1):
-        raise ConfigError(
-            "[registration] node_geodesic_ratio must be 0 (off) or >= 1 (a geodesic path is "
-            f"never shorter than the straight line), got {config.node_geodesic_ratio!r}"
-        )
 
 
 def _cpd_sigma2(y: np.ndarray, x: np.ndarray) -> float:
@@ -348,8 +297,8 @@ def _cpd_sigma2(y: np.ndarray, x: np.ndarray) -> float:
 
 
 def _residual_sigma2(y: np.ndarray, x: np.ndarray) -> float:
-    """Start sigma^2 from how far the predicted template is from the data: the mean squared
-    nearest-neighbour distance in both directions, per dimension (m^2)."""
+    """Start sigma^2 from how far a posed template ``y (M, 3)`` is from the data ``x (N, 3)``:
+    the mean squared nearest-neighbour distance in both directions, per dimension (m^2)."""
     dy = nearest_distances(y, x)
     dx = nearest_distances(x, y)
     return float((np.mean(dy**2) + np.mean(dx**2)) / 6.0)
@@ -368,9 +317,11 @@ def _predict(r1, t1, r0, t0, nodes, gain):
     return np.ascontiguousarray(r), np.ascontiguousarray(t)
 
 
-def _frame_kwargs(config: RegistrationConfig) -> dict[str, Any]:
+def _frame_params(config: RegistrationConfig) -> Any:
+    """The parameters of ``DeformGraph.register_frame`` that are the same for every frame
+    (``_core.FrameParams``)."""
     relative = config.beta_smooth_mode == "relative"
-    return dict(
+    return _core.FrameParams(
         omega=config.omega,
         beta_smooth=config.beta_smooth_rel if relative else config.beta_smooth,
         beta_relative=relative,
@@ -381,14 +332,13 @@ def _frame_kwargs(config: RegistrationConfig) -> dict[str, Any]:
         max_iter=config.max_iterations,
         tol=config.tolerance,
         cutoff=config.cutoff if config.cutoff > 0 else None,
-        single=config.single_precision,
         solver=config.solver,
         damping=config.gn_damping,
         cg_tol=config.cg_tolerance,
         cg_max=config.cg_max_iterations,
         subsample=config.subsample,
         motion_tol=config.motion_tol,
-        robust=config.smooth_robust,
+        kappa=config.normal_kappa,
     )
 
 
@@ -402,14 +352,14 @@ def register_sequence(
     Frames after the rest frame are registered forwards from it and frames before it
     backwards, each starting from its neighbour's result (with constant-velocity prediction
     when ``predict_velocity > 0``, kept only if it explains the frame better than the
-    neighbour's own pose, ``predict_check``). The two chains run side by side on two threads
-    once the rest frame and the frame after it are done; the result is the same as one after
-    the other (``tests/test_determinism.py``).
+    neighbour's own pose, ``predict_check``). The two chains run side by side on
+    ``config.workers`` threads once the rest frame and the frame after it are done; the result
+    is the same as one after the other.
     With ``rest_frame = "fit"`` (the default) the sequence is registered from each of
     :func:`rest_candidates` and the result whose points explain the frames best
-    (:func:`sequence_misfit`) is returned, unless it beats the first candidate (the "visible"
-    frame) by no more than ``rest_fit_margin``; its ``params["rest_candidates_misfit"]`` maps
-    each candidate (the frame index as a string, as in JSON) to its misfit (metres).
+    (:func:`sequence_misfit`) is returned, unless it beats the first candidate by no more than
+    ``rest_fit_margin``; its ``params["rest_candidates_misfit"]`` maps each candidate (the
+    frame index as a string, as in JSON) to its misfit (metres).
 
     Parameters
     ----------
@@ -424,10 +374,14 @@ def register_sequence(
     -------
     RegistrationResult
         Registered points in the input coordinates.
+
+    Raises
+    ------
+    ConfigError
+        If ``rest_frame`` is an index outside the sequence.
     """
     config = config or RegistrationConfig()
     f = seq.n_frames
-    _validate(config, f)
     lo, hi = seq.bounds()
     if np.linalg.norm(hi - lo) > 50.0:
         log.warning(
@@ -435,7 +389,7 @@ def register_sequence(
             np.linalg.norm(hi - lo),
         )
     if config.rest_frame != "fit":
-        rf = resolve_rest_frame(config, f, seq.frames)  # also validates it
+        rf = resolve_rest_frame(config, f)  # also checks the index against the frames
         return _register_from(seq, config, rf, progress)
     candidates = rest_candidates(config, seq.frames)
     k = len(candidates)
@@ -450,8 +404,8 @@ def register_sequence(
     for i, rf in enumerate(candidates):
         results.append(_register_from(seq, config, rf, sub(i)))
         scores.append(sequence_misfit(results[-1].points, seq.frames, trunc))
-    # the best fit, unless it explains the frames better than the first candidate (the
-    # "visible" frame) by no more than rest_fit_margin
+    # the best fit, unless it explains the frames better than the first candidate by no more
+    # than rest_fit_margin
     i = int(np.argmin(scores))
     if scores[i] >= (1.0 - config.rest_fit_margin) * scores[0]:
         i = 0
@@ -474,14 +428,14 @@ def sequence_misfit(points: np.ndarray, frames: Sequence[np.ndarray], trunc: flo
 
 
 def rest_candidates(config: RegistrationConfig, frames: Sequence[np.ndarray]) -> list[int]:
-    """Candidate rest frames of ``rest_frame = "fit"``: the "visible" frame first, then up to
-    ``rest_candidates - 1`` more of the same near-largest surface cover, each the one whose pose
-    differs most from those already chosen (farthest-point sampling on the symmetric chamfer
-    distance between centred frames, up to 2000 points each), while one differs by more than
-    twice the point spacing."""
+    """Candidate rest frames of ``rest_frame = "fit"``: :func:`resolve_rest_frame`'s frame
+    first, then up to ``rest_candidates - 1`` more of the same near-largest surface cover, each
+    the one whose pose differs most from those already chosen (farthest-point sampling on the
+    symmetric chamfer distance between centred frames, up to 2000 points each), while one
+    differs by more than twice the point spacing."""
     n = len(frames)
     good = _cover_candidates(config, frames)
-    first = _nearest_middle(good, n)  # the "visible" frame
+    first = _nearest_middle(good, n)
     rng = np.random.default_rng(config.seed)
 
     def centred(t: int) -> np.ndarray:
@@ -507,8 +461,8 @@ def rest_candidates(config: RegistrationConfig, frames: Sequence[np.ndarray]) ->
             break
         chosen.append(t)
         del nearest[t]
-        for u in nearest:
-            nearest[u] = min(nearest[u], dist(u, t))
+        for u, d in nearest.items():
+            nearest[u] = min(d, dist(u, t))
     return chosen
 
 
@@ -526,7 +480,7 @@ def _register_from(seq: PointSequence, config: RegistrationConfig, rf: int,
         sparse_neighbors=config.rest_sparse_neighbors,
         sparse_ratio=config.rest_sparse_ratio,
     )
-    graph, g, kw, normal_radius = _frame_setup(rest, seq.frames[rf], config)
+    graph, g, params, normal_radius = _frame_setup(rest, seq.frames[rf], config)
     j = len(graph.nodes)
     m = len(rest)
 
@@ -567,10 +521,8 @@ def _register_from(seq: PointSequence, config: RegistrationConfig, rf: int,
                 log.debug("frame %d: the previous pose explains it better than the prediction "
                           "(misfit %.4f < %.4f m); holding it", t, m_hold, m_pred)
                 r_init, t_init = prev[0].copy(), prev[1].copy()
-        kw_t = dict(kw)
-        if config.normal_kappa > 0:
-            kw_t["x_normals"] = estimate_normals(x, normal_radius)
-        res = _register_one(g, x, r_init, t_init, config, kw_t)
+        x_normals = estimate_normals(x, normal_radius) if config.normal_kappa > 0 else None
+        res = _register_one(g, x, r_init, t_init, config, params, x_normals)
         frac = res["n_p"] / max(res["n_data"], 1)
         if frac < config.lost_fraction and prev is not None:
             log.warning(
@@ -578,7 +530,7 @@ def _register_from(seq: PointSequence, config: RegistrationConfig, rf: int,
                 t, frac, config.lost_fraction,
             )
             retry = _register_one(
-                g, x, prev[0], prev[1], config, kw_t,
+                g, x, prev[0], prev[1], config, params, x_normals,
                 sigma2_start=4.0 * config.sigma2_start_max, extra_rigid=3,
             )
             if retry["n_p"] > res["n_p"]:
@@ -603,13 +555,13 @@ def _register_from(seq: PointSequence, config: RegistrationConfig, rf: int,
 
     # The rest frame, then the first frame after it (the first frame before it predicts from
     # both); from there the forward and the backward chains depend on nothing of each other
-    # and run side by side (the native calls and the k-d tree queries release the GIL), each
-    # with the same arithmetic as one after the other.
+    # and run side by side (the native calls and the nearest-distance queries release the
+    # GIL), each with the same arithmetic as one after the other.
     chain([rf] + ([rf + 1] if rf + 1 < f else []))
-    pool = ThreadPoolExecutor(max_workers=_CHAIN_WORKERS)
+    chains = [c for c in (list(range(rf + 2, f)), list(range(rf - 1, -1, -1))) if c]
+    pool = ThreadPoolExecutor(max_workers=pool_size(config.workers, len(chains)))
     try:
-        futures = [pool.submit(chain, c) for c in (list(range(rf + 2, f)),
-                                                   list(range(rf - 1, -1, -1))) if c]
+        futures = [pool.submit(chain, c) for c in chains]
         for fut in as_completed(futures):
             fut.result()  # the first error stops the other chain at its next frame
     finally:
@@ -628,39 +580,36 @@ def _register_from(seq: PointSequence, config: RegistrationConfig, rf: int,
 
 
 def _frame_setup(rest: np.ndarray, rest_frame: np.ndarray, config: RegistrationConfig
-                 ) -> tuple[DeformationGraph, Any, dict[str, Any], float]:
+                 ) -> tuple[DeformationGraph, Any, Any, float]:
     """The deformation graph of the rest points (with their normals when ``normal_kappa >
-    0``, estimated on the rest frame's points), its native form, the keyword arguments of
-    ``register_frame`` but the per-frame data normals, and the normal radius (metres)."""
-    kw = _frame_kwargs(config)
+    0``, estimated on the rest frame's points), its native form, the per-sequence
+    ``_core.FrameParams`` and the data normals' radius (metres)."""
     graph = build_graph(rest, config)
-    # mean nearest-neighbour distance of the rest points: the length scale of the
-    # template's resolution, for the options measured against it
-    spacing = mean_spacing(rest)
-    normal_radius = config.normal_radius * spacing
+    # mean nearest-neighbour distance of the rest points: the template's resolution
+    normal_radius = config.normal_radius * mean_spacing(rest)
     if config.normal_kappa > 0:
         graph.normals = estimate_normals(rest, normal_radius, source=rest_frame)
-        kw["kappa"] = config.normal_kappa
-    if config.density_voxel > 0:
-        kw["voxel_min"] = config.density_voxel * spacing
-    return graph, graph.native(), kw, normal_radius
+    return graph, graph.native(), _frame_params(config), normal_radius
 
 
-def _register_one(g, x, r_init, t_init, config, kw, sigma2_start=None, extra_rigid=0):
-    y0 = g.deform(r_init, t_init)
+def _register_one(g: Any, x: np.ndarray, r_init: np.ndarray, t_init: np.ndarray,
+                  config: RegistrationConfig, params: Any, x_normals: np.ndarray | None,
+                  sigma2_start: float | None = None, extra_rigid: int = 0) -> dict[str, Any]:
+    """One frame's EM (``DeformGraph.register_frame``) from the node transforms ``r_init (J,
+    3, 3)``, ``t_init (J, 3)`` against ``x (N, 3)``, starting at ``sigma2_start`` (m^2; by
+    default the ``sigma2_start`` rule of the config) with ``extra_rigid`` more rigid
+    iterations."""
     if sigma2_start is None:
         if config.sigma2_start == "data":
-            s2 = min(max(_cpd_sigma2(y0, x), config.sigma2_init), config.sigma2_start_max)
-        elif config.sigma2_start == "residual":
-            s2 = min(max(_residual_sigma2(y0, x), config.sigma2_min), config.sigma2_start_max)
+            y0 = g.deform(r_init, t_init)
+            sigma2_start = min(max(_cpd_sigma2(y0, x), config.sigma2_init),
+                               config.sigma2_start_max)
         else:
-            s2 = config.sigma2_init
-    else:
-        s2 = sigma2_start
-    return g.register_frame(
-        np.ascontiguousarray(x), r_init, t_init, sigma2_start=s2,
-        rigid_iters=config.rigid_iterations + extra_rigid, **kw,
-    )
+            sigma2_start = config.sigma2_init
+    return g.register_frame(np.ascontiguousarray(x), r_init, t_init, params,
+                            sigma2_start=sigma2_start,
+                            rigid_iters=config.rigid_iterations + extra_rigid,
+                            x_normals=x_normals)
 
 
 def _node_neighbours(graph: DeformationGraph, k: int) -> np.ndarray:
@@ -735,21 +684,17 @@ def refine_registration(
     progress: Callable[[int, int], None] | None = None,
 ) -> RegistrationResult:
     """Register every frame again, each on its own, starting from a posed template (our
-    deviation from §4, ``RegistrationConfig.refine_rounds``; docs/registration.md "Session
-    26").
+    deviation from §4, ``RegistrationConfig.refine_rounds``; docs/registration.md).
 
     Step 1 registers each frame from its neighbour's result, so its errors (a limb lost behind
     the body, a template slid along a smooth part) carry on down the chain. Step 3's tracked
-    skeleton explains the raw frames better (rigid bones held at their joints; correspondence
-    error 3.46 against 4.15 cm on 25 sequences) but cannot bend inside a bone. Here each
-    frame's deformation graph starts from the tracked pose (per-node Kabsch fits,
-    :func:`node_transforms_from_points`) with sigma^2 from the start's own misfit (capped at
-    ``sigma2_init``) and no rigid steps, and the usual EM (Eqs. 4-12) fits it to the frame:
-    no chain, so nothing propagates from one frame to the next. The pipeline then runs steps
-    2 and 3 again on the result. 14 sequences of 100 frames: recall / precision / normalised
-    0.686 / 0.431 / 2.85 cm -> 0.725 / 0.481 / 2.60 cm (session 27, mean of three runs on
-    inputs 1e-9 m apart: 0.675 / 0.412 / 3.23 -> 0.706 / 0.433 / 2.76 cm); 25 of 40 frames
-    (shorter chains): 0.787 / 0.551 / 2.53 -> 0.779 / 0.542 / 2.50 cm.
+    skeleton explains the raw frames better (rigid bones held at their joints) but cannot bend
+    inside a bone. Here each frame's deformation graph starts from the tracked pose (per-node
+    Kabsch fits, :func:`node_transforms_from_points`) with sigma^2 from the start's own misfit
+    (capped at ``sigma2_init``) and no rigid steps, and the usual EM (Eqs. 4-12) fits it to
+    the frame: no chain, so nothing propagates from one frame to the next. The frames run on
+    ``config.workers`` threads (the same result as one after the other). The pipeline then
+    runs steps 2 and 3 again on the result.
 
     Parameters
     ----------
@@ -779,14 +724,13 @@ def refine_registration(
     config = config or RegistrationConfig()
     rest = np.ascontiguousarray(reg.rest_points, dtype=np.float64)
     f, m = seq.n_frames, len(rest)
-    _validate(config, f)
     posed = np.asarray(posed, dtype=np.float64)
     if posed.shape != (f, m, 3) or not np.isfinite(posed).all():
         raise InputError(f"refine_registration: posed points must be finite ({f}, {m}, 3), "
                          f"got {posed.shape}")
     rf = reg.params.get("rest_frame_index")  # the cover search only for an old checkpoint
     rf = resolve_rest_frame(config, f, seq.frames) if rf is None else int(rf)
-    graph, g, kw, normal_radius = _frame_setup(rest, seq.frames[rf], config)
+    graph, g, params, normal_radius = _frame_setup(rest, seq.frames[rf], config)
     r_start, t_start = node_transforms_from_points(graph, posed)  # (F, J, 3, 3), (F, J, 3)
     points = posed.copy()
     sigma2 = np.zeros(f)
@@ -799,17 +743,17 @@ def refine_registration(
         if not len(x):
             return None
         r0, t0 = r_start[t], t_start[t]
-        kw_t = dict(kw)
-        if config.normal_kappa > 0:
-            kw_t["x_normals"] = estimate_normals(x, normal_radius)
+        x_normals = estimate_normals(x, normal_radius) if config.normal_kappa > 0 else None
         s2 = min(max(_residual_sigma2(g.deform(r0, t0), x), config.sigma2_min),
                  config.sigma2_init)
-        return g.register_frame(x, r0, t0, sigma2_start=s2, rigid_iters=0, **kw_t)
+        return g.register_frame(x, r0, t0, params, sigma2_start=s2, rigid_iters=0,
+                                x_normals=x_normals)
 
-    # every frame starts from its own posed points, so the frames are independent: two at a
-    # time (the native calls and the k-d tree queries release the GIL), each with the same
-    # arithmetic as alone. On an error or Ctrl-C the frames not yet started are dropped.
-    pool = ThreadPoolExecutor(max_workers=_REFINE_WORKERS)
+    # every frame starts from its own posed points, so the frames are independent: they run
+    # side by side (the native calls and the nearest-distance queries release the GIL), each
+    # with the same arithmetic as alone. On an error or Ctrl-C the frames not yet started are
+    # dropped.
+    pool = ThreadPoolExecutor(max_workers=pool_size(config.workers, f))
     try:
         for t, res in enumerate(pool.map(one, range(f))):
             if res is not None:

@@ -17,7 +17,7 @@ import numpy as np
 from .errors import InputError
 from .io.atomic import write_json, write_npz
 
-__all__ = ["Skeleton", "SKELETON_FORMAT", "load_skeleton_json"]
+__all__ = ["SKELETON_FORMAT", "Skeleton", "load_skeleton_json"]
 
 SKELETON_FORMAT = "pointrig.skeleton/1"
 

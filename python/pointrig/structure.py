@@ -10,7 +10,7 @@ every frame) build a bone tree without being told the number of bones:
    frames, (iii) majority vote of the labels in a rest-pose ball around each point. The fits and
    residuals run in the Rust core (``_core.cluster_fit``, ``_core.cluster_residuals``).
 2. **Refinement** (§5.4), made precise (docs/structure.md): bones whose relative rotation never
-   exceeds ``merge_angle_deg`` (``merge_percentile``-th percentile over frames) and whose
+   exceeds ``merge_angle_deg`` (``merge_percentile``-th percentile over every two frames) and whose
    relative motion moves the smaller bone by less than ``merge_displacement`` of the subject's
    size (``merge_rule="both"``: no visible articulation either way) are merged, tiny
    clusters are absorbed, spurious leaves at branching joints are pruned, and bones whose joints
@@ -32,6 +32,7 @@ Conventions (TEAM.md): metres; ``x = R[t, b] @ q + T[t, b]`` (``T_frame_rest``);
 
 from __future__ import annotations
 
+import itertools
 import json
 import logging
 import time
@@ -43,43 +44,46 @@ from typing import Any
 import numpy as np
 
 from . import _core
-from .config import StructureConfig
-from .errors import ConfigError, FormatError, InputError
+from .config import StructureConfig, pool_size
+from .errors import FormatError, InputError
 from .io.atomic import write_npz
 from .kinematics import joint_trajectories, solve_joint_positions
 from .preprocess import knn_graph
 from .skeleton import Skeleton
-from .view import SINGLE_VIEW_MAX_TWO_LAYER, in_view, two_layer_fraction, view_depth_correct
+from .view import (
+    SINGLE_VIEW_MAX_TWO_LAYER,
+    in_view,
+    two_layer_fraction,
+    view_depth_correct,
+)
 
 __all__ = [
     "StructureResult",
-    "extract_structure",
-    "structure_from_labels",
-    "to_skeleton",
-    "fit_bones",
+    "centre_root_joint",
     "eq15_weights",
+    "extract_structure",
+    "fit_bones",
+    "leaf_bend",
+    "leaf_root",
+    "output_tree",
     "relative_rotation_angles",
     "relative_rotation_range",
     "removal_cost",
-    "skeleton_distance",
-    "write_structure_outputs",
-    "output_tree",
-    "tree_centre",
-    "tree_eccentricity",
-    "centre_root_joint",
-    "root_axis_joint",
-    "leaf_root",
     "reroot",
-    "leaf_bend",
+    "root_axis_joint",
+    "skeleton_distance",
     "split_bent_leaves",
     "split_disconnected_bones",
+    "structure_from_labels",
+    "to_skeleton",
+    "tree_centre",
+    "tree_eccentricity",
+    "write_structure_outputs",
 ]
 
 log = logging.getLogger(__name__)
 
 _BAND_SAMPLE = 128  # points per bone used by the blend-band test (speed only)
-#: threads for the ensemble's seeds (:func:`extract_structure`; 1 = one after the other)
-_ENSEMBLE_WORKERS = 2
 
 
 # --------------------------------------------------------------------------------------------
@@ -118,9 +122,6 @@ class StructureResult:
         correction to its joint prior.
     view_quantile
         The quantile ``q`` of that correction (0 when off).
-    view_method
-        How that correction estimates the axis depth: ``"width"`` or ``"quantile"``
-        (:func:`pointrig.view.view_depth_correct`).
     """
 
     labels: np.ndarray
@@ -134,7 +135,6 @@ class StructureResult:
     diagnostics: dict[str, Any] = field(default_factory=dict)
     view_camera: np.ndarray | None = None
     view_quantile: float = 0.0
-    view_method: str = "quantile"
 
     @property
     def n_bones(self) -> int:
@@ -152,7 +152,6 @@ class StructureResult:
             view_camera=(np.full(3, np.nan) if self.view_camera is None
                          else np.asarray(self.view_camera, dtype=float)),
             view_quantile=np.float64(self.view_quantile),
-            view_method=np.array(self.view_method),
         )
 
     @classmethod
@@ -246,40 +245,17 @@ def relative_rotation_range(R: np.ndarray, pairs: np.ndarray, max_frames: int = 
     return _trace_angle(tr).reshape(len(pairs), -1)
 
 
-def swing_angles(R: np.ndarray, pairs: np.ndarray, axes: np.ndarray) -> np.ndarray:
-    """Swing angle (radians) per pair and frame, ``(P, F)``: the angle by which the relative
-    rotation ``R_i^tT R_j^t`` turns the unit ``axes (P, 3)`` (the rest-pose direction between
-    the two bones' centres). Twist about that axis is ignored."""
-    pairs = np.asarray(pairs, np.int64).reshape(-1, 2)
-    rel = np.einsum("fpji,fpjk->fpik", R[:, pairs[:, 0]], R[:, pairs[:, 1]])
-    cos = np.einsum("fpik,pk,pi->pf", rel, axes, axes)
-    return np.arccos(np.clip(cos, -1.0, 1.0))
-
-
-def _pair_axes(Q: np.ndarray, labels: np.ndarray, pairs: list[tuple[int, int]]) -> np.ndarray:
-    """Unit rest-pose direction between the centres of each pair of bones, ``(P, 3)``."""
-    B = int(labels.max()) + 1
-    centres = np.zeros((B, 3))
-    np.add.at(centres, labels, Q)
-    centres /= np.maximum(np.bincount(labels, minlength=B), 1)[:, None]
-    P = np.array(pairs, np.int64).reshape(-1, 2)
-    d = centres[P[:, 1]] - centres[P[:, 0]]
-    return d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
-
-
 # --------------------------------------------------------------------------------------------
 # internals
 # --------------------------------------------------------------------------------------------
 
 
 def _load_view(z: Any) -> dict[str, Any]:
-    """``view_camera`` / ``view_quantile`` / ``view_method`` of a saved result (absent in
-    older files: off; files before session 13 used the ``"quantile"`` method)."""
-    method = str(z["view_method"]) if "view_method" in z else "quantile"
+    """``view_camera`` / ``view_quantile`` of a saved result (a camera of NaN: off)."""
     if "view_camera" not in z or not np.all(np.isfinite(z["view_camera"])):
-        return {"view_camera": None, "view_quantile": 0.0, "view_method": method}
+        return {"view_camera": None, "view_quantile": 0.0}
     return {"view_camera": np.asarray(z["view_camera"], dtype=float),
-            "view_quantile": float(z["view_quantile"]), "view_method": method}
+            "view_quantile": float(z["view_quantile"])}
 
 
 class _Ctx:
@@ -475,23 +451,16 @@ def rotation_noise_var(Q: np.ndarray, labels: np.ndarray, own_res: np.ndarray, B
 
 
 def _merge_stat(R: np.ndarray, pairs: list[tuple[int, int]], pct: float,
-                noise_var: np.ndarray | None = None, margin: float = 1.0,
-                axes: np.ndarray | None = None, reference: str = "rest") -> np.ndarray:
-    """Relative-rotation statistic (degrees) per pair: the ``pct``-th percentile over frames of
-    the angle of ``R_i^tT R_j^t`` (``reference="rest"``; ``"range"``: over every two frames,
-    :func:`relative_rotation_range`; with ``axes``, of its swing away from the axis between
-    the bones, see :func:`swing_angles`, always against the rest pose), minus (in quadrature)
+                noise_var: np.ndarray | None = None, margin: float = 1.0) -> np.ndarray:
+    """Relative-rotation statistic (degrees) per pair: the ``pct``-th percentile over every two
+    frames of the angle between their relative rotations ``R_i^tT R_j^t``
+    (:func:`relative_rotation_range`, whatever frame is the rest pose), minus (in quadrature)
     the same percentile expected from the Kabsch noise of the two bones alone (``margin``
     times it)."""
     if not pairs:
         return np.zeros(0)
     P = np.array(pairs)
-    if axes is not None:
-        ang = swing_angles(R, P, axes)
-    elif reference == "range":
-        ang = relative_rotation_range(R, P)
-    else:
-        ang = relative_rotation_angles(R, P)
+    ang = relative_rotation_range(R, P)
     stat = np.percentile(ang, pct, axis=1)
     if noise_var is not None and margin > 0:
         from scipy.stats import chi
@@ -499,8 +468,7 @@ def _merge_stat(R: np.ndarray, pairs: list[tuple[int, int]], pct: float,
         # a relative rotation made of noise only is ~ isotropic Gaussian in 3 axes:
         # its angle is chi(3)-distributed with E[theta^2] = var_i + var_j
         var = noise_var[P[:, 0]] + noise_var[P[:, 1]]
-        dof = 3 if axes is None else 2  # a swing has two rotational degrees of freedom
-        q = chi.ppf(pct / 100.0, dof) / np.sqrt(3.0)
+        q = chi.ppf(pct / 100.0, 3) / np.sqrt(3.0)
         noise = margin * q * np.sqrt(var)
         stat = np.sqrt(np.maximum(stat ** 2 - noise ** 2, 0.0))
     return np.degrees(stat)
@@ -521,9 +489,7 @@ def _merge_scores(ctx: _Ctx, labels: np.ndarray, R: np.ndarray, T: np.ndarray,
     B = int(labels.max()) + 1
     own = _core.cluster_residuals(ctx.Q, ctx.Y, R, T, np.ascontiguousarray(labels[:, None]))[:, 0]
     nv = rotation_noise_var(ctx.Q, labels, own, B, ctx.F, cfg.noise_corr_exponent)
-    axes = _pair_axes(ctx.Q, labels, pairs) if cfg.merge_ignore_twist else None
-    stat = _merge_stat(R, pairs, cfg.merge_percentile, nv, cfg.noise_margin, axes,
-                       cfg.merge_reference)
+    stat = _merge_stat(R, pairs, cfg.merge_percentile, nv, cfg.noise_margin)
     s_angle = stat / cfg.merge_angle_deg
     if cfg.merge_rule == "angle":
         return s_angle, stat
@@ -723,8 +689,7 @@ def _boundary_centroids(ctx: _Ctx, labels: np.ndarray, parent: np.ndarray,
             out[k] = ctx.Q[sel].mean(0)
             if view_camera is not None:
                 out[k] = view_depth_correct(ctx.Q[sel], None, out[k], view_camera,
-                                            ctx.cfg.view_depth_quantile,
-                                            ctx.cfg.view_depth_method)
+                                            ctx.cfg.view_depth_quantile)
         else:
             out[k] = _closest_pair(ctx, labels, k, p)[1]
     return out
@@ -918,7 +883,9 @@ def _prune(ctx: _Ctx, labels: np.ndarray, parent: np.ndarray, joints: np.ndarray
 # --------------------------------------------------------------------------------------------
 
 
-def _check_inputs(rest_points: np.ndarray, points: np.ndarray, cfg: StructureConfig):
+def _check_inputs(rest_points: np.ndarray, points: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """``Q (M, 3)`` and ``Y (F, M, 3)`` as contiguous float64, checked (``InputError``)."""
     Q = np.ascontiguousarray(rest_points, dtype=np.float64)
     Y = np.ascontiguousarray(points, dtype=np.float64)
     if Q.ndim != 2 or Q.shape[1] != 3 or Q.shape[0] == 0:
@@ -927,35 +894,6 @@ def _check_inputs(rest_points: np.ndarray, points: np.ndarray, cfg: StructureCon
         raise InputError(f"points must be (F, {Q.shape[0]}, 3), got {Y.shape}")
     if not (np.isfinite(Q).all() and np.isfinite(Y).all()):
         raise InputError("rest_points / points contain NaN or inf")
-    if cfg.n_clusters < 1 or cfg.cluster_rounds < 0 or cfg.vote_neighbors < 1:
-        raise ConfigError("structure: n_clusters and vote_neighbors must be >= 1, "
-                          "cluster_rounds >= 0")
-    if not 0 <= cfg.merge_percentile <= 100:
-        raise ConfigError("structure: merge_percentile must be in [0, 100]")
-    if cfg.merge_rule == "both" and not cfg.merge_displacement > 0:
-        raise ConfigError("structure: merge_displacement must be > 0 (fraction of the size)")
-    if not 0 <= cfg.view_depth_quantile <= 1:
-        raise ConfigError("structure: view_depth_quantile must be in [0, 1]")
-    if cfg.view_depth_method == "width" and 0 < cfg.view_depth_quantile <= 0.5:
-        raise ConfigError("structure: view_depth_method 'width' needs view_depth_quantile "
-                          "above 1/2 (or 0 = off)")
-    if not (cfg.neighbor_stretch == 0 or cfg.neighbor_stretch >= 1):
-        raise ConfigError("structure: neighbor_stretch must be 0 (off) or >= 1 "
-                          f"(a factor on the ball radius), got {cfg.neighbor_stretch!r}")
-    if not (np.isfinite(cfg.edge_joint_prior) and cfg.edge_joint_prior >= 0):
-        raise ConfigError("structure: edge_joint_prior must be >= 0 (relative weight of the "
-                          f"contact centroid), got {cfg.edge_joint_prior!r}")
-    if not (np.isfinite(cfg.invisible_bone_fraction) and cfg.invisible_bone_fraction >= 0):
-        raise ConfigError("structure: invisible_bone_fraction must be >= 0 (fraction of the "
-                          f"size; 0 = off), got {cfg.invisible_bone_fraction!r}")
-    if len(cfg.camera_position) != 3 or not np.all(np.isfinite(cfg.camera_position)):
-        raise ConfigError("structure: camera_position must be 3 finite numbers (metres)")
-    if not (isinstance(cfg.ensemble_seeds, int) and cfg.ensemble_seeds >= 1):
-        raise ConfigError("structure: ensemble_seeds must be an integer >= 1 (1 = one run), "
-                          f"got {cfg.ensemble_seeds!r}")
-    if not (np.isfinite(cfg.ensemble_radius) and cfg.ensemble_radius > 0):
-        raise ConfigError("structure: ensemble_radius must be > 0 (fraction of the size), "
-                          f"got {cfg.ensemble_radius!r}")
     return Q, Y
 
 
@@ -963,13 +901,14 @@ def extract_structure(rest_points: np.ndarray, points: np.ndarray,
                       config: StructureConfig | None = None) -> StructureResult:
     """Skeletal structure from a registered sequence (§5).
 
-    With ``config.ensemble_seeds = n > 1`` (our deviation, docs/structure.md "Session 20") the
-    whole step runs from the k-means seeds ``seed, ..., seed + n - 1`` and returns the
-    *medoid* run: the one whose joint trajectories are closest to the other runs' (see
+    With ``config.ensemble_seeds = n > 1`` (our deviation, docs/structure.md) the whole step
+    runs from the k-means seeds ``seed, ..., seed + n - 1`` and returns the *medoid* run: the
+    one whose joint trajectories are closest to the other runs' (see
     :func:`skeleton_distance`). A single run's bone boundaries depend on the k-means start,
     so two nearly equal registrations can give skeletons that differ by several joints; the
     medoid is the typical one. Runs share the neighbourhoods (``_Ctx``), so the cost is about
-    ``n`` times the clustering and refinement.
+    ``n`` times the clustering and refinement; they run on ``config.workers`` threads (the
+    same result as one after the other).
 
     Parameters
     ----------
@@ -991,20 +930,18 @@ def extract_structure(rest_points: np.ndarray, points: np.ndarray,
     ------
     InputError
         On wrong shapes or non-finite values.
-    ConfigError
-        On invalid parameters.
     """
     cfg = config or StructureConfig()
-    Q, Y = _check_inputs(rest_points, points, cfg)
+    Q, Y = _check_inputs(rest_points, points)
     t0 = time.perf_counter()
     ctx = _Ctx(Q, Y, cfg)
     view_diag: dict[str, Any] = {}
     view_camera = _view_camera(Q, cfg, view_diag)
     n = cfg.ensemble_seeds
     features = kmeans_features(Q, Y, cfg)  # the same for every seed
-    # the seeds' runs share only read-only inputs: two at a time (the native calls release
-    # the GIL), each with the same arithmetic as alone
-    with ThreadPoolExecutor(max_workers=min(_ENSEMBLE_WORKERS, n)) as pool:
+    # the seeds' runs share only read-only inputs: side by side (the native calls release the
+    # GIL), each with the same arithmetic as alone
+    with ThreadPoolExecutor(max_workers=pool_size(cfg.workers, n)) as pool:
         runs = list(pool.map(lambda i: _extract_once(ctx, features, cfg.seed + i, view_camera,
                                                      view_diag), range(n)))
     if n == 1:
@@ -1072,7 +1009,6 @@ def _extract_once(ctx: _Ctx, features: np.ndarray, seed: int,
     d)``, :func:`kmeans_features`); ``view_camera`` and its diagnostics ``view_diag`` come from
     :func:`_view_camera`."""
     cfg = ctx.cfg
-    Q = ctx.Q
     t0 = time.perf_counter()
     M = ctx.M
     k = int(min(cfg.n_clusters, M))
@@ -1098,10 +1034,9 @@ def _extract_once(ctx: _Ctx, features: np.ndarray, seed: int,
         R, T, counts = ctx.fit(labels, B)
         parent, root, bridges = _build_tree(ctx, labels, B, R, T, diag)
         # motion test also along bridge edges (bones that do not touch)
-        if bridges:
-            if (_merge_scores(ctx, labels, R, T, sorted(bridges))[0] < 1.0).any():
-                tree_pairs = sorted(bridges)
-                continue
+        if bridges and (_merge_scores(ctx, labels, R, T, sorted(bridges))[0] < 1.0).any():
+            tree_pairs = sorted(bridges)
+            continue
         tree_pairs = []
         c_tilde = _boundary_centroids(ctx, labels, parent)
         joints = solve_joint_positions(R, T, parent, c_tilde, cfg.eta)
@@ -1138,8 +1073,8 @@ def _finish(ctx: _Ctx, labels: np.ndarray, R: np.ndarray, T: np.ndarray, counts:
         # single-view depth correction of the final c~ only: the refinement's pruning tests
         # keep the uncorrected (surface) joints, so the bone count does not depend on it.
         # The root joint is not corrected here: the root part can reach far back in depth (a
-        # torso seen side-on), and a quantile of its depths overshot by 20 cm on a 100-frame
-        # human. The output corrects it on the points near it (output_tree, root_depth)
+        # torso seen side-on), so its depths overshoot the axis near the joint. The output
+        # corrects it on the points near it (output_tree)
         c_tilde = _boundary_centroids(ctx, labels, parent, view_camera)
         joints = solve_joint_positions(R, T, parent, c_tilde, cfg.eta)
     joints = joints.copy()
@@ -1154,7 +1089,7 @@ def _finish(ctx: _Ctx, labels: np.ndarray, R: np.ndarray, T: np.ndarray, counts:
                            c_tilde=c_tilde, root=root, rest_points=Q, diagnostics=diag,
                            view_camera=view_camera,
                            view_quantile=cfg.view_depth_quantile if view_camera is not None
-                           else 0.0, view_method=cfg.view_depth_method)
+                           else 0.0)
 
 
 def structure_from_labels(rest_points: np.ndarray, points: np.ndarray, labels: np.ndarray,
@@ -1192,7 +1127,7 @@ def structure_from_labels(rest_points: np.ndarray, points: np.ndarray, labels: n
     import networkx as nx
 
     cfg = config or StructureConfig()
-    Q, Y = _check_inputs(rest_points, points, cfg)
+    Q, Y = _check_inputs(rest_points, points)
     lab = np.asarray(labels)
     if lab.shape != (len(Q),) or not np.issubdtype(lab.dtype, np.integer) or lab.min() < 0:
         raise InputError(f"labels must be ({len(Q)},) non-negative integers, got {lab.shape} "
@@ -1345,8 +1280,8 @@ def tree_centre(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np.nda
     the body through the bone tree (:func:`tree_eccentricity`). On a figure it lies between
     the limbs' attachments (a human's lower spine), whatever bone is largest. The minimum is
     flat across the body there, so which point wins can be decided by a stray lateral offset
-    of a joint: on an idle figure whose hanging arms are part of the torso's bone, it fell on
-    a hand at hip height (docs/structure.md "Session 61"). With ``tolerance > 0`` the centre
+    of a joint (on an idle figure whose hanging arms are part of the torso's bone, a hand at
+    hip height). With ``tolerance > 0`` the centre
     is the centroid of the whole flat region, the points whose eccentricity is within
     ``tolerance`` times the rest points' bounding-box diagonal of the minimum, and its bone
     the one holding most of them.
@@ -1379,18 +1314,18 @@ def tree_centre(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np.nda
 
 def centre_root_joint(rest_points: np.ndarray, centre: np.ndarray,
                       view_camera: np.ndarray | None = None, view_quantile: float = 0.95,
-                      view_method: str = "width", ball: float = 0.1) -> np.ndarray:
+                      ball: float = 0.1) -> np.ndarray:
     """Rest position ``(3,)`` (metres) of a root joint at the body's centre: the centroid of
     the rest points within ``ball`` times the rest points' bounding-box diagonal of ``centre``
     (:func:`tree_centre`), moved back along the camera ray to the depth of the body's axis
     (:func:`pointrig.view.view_depth_correct`) when ``view_camera`` is given."""
     near = _ball_points(rest_points, centre, ball)
-    return _axis_depth(near, near.mean(axis=0), view_camera, view_quantile, view_method)
+    return _axis_depth(near, near.mean(axis=0), view_camera, view_quantile)
 
 
 def root_axis_joint(rest_points: np.ndarray, joint: np.ndarray,
                     view_camera: np.ndarray | None = None, view_quantile: float = 0.95,
-                    view_method: str = "width", ball: float = 0.1) -> np.ndarray:
+                    ball: float = 0.1) -> np.ndarray:
     """Rest position ``(3,)`` (metres) of a root joint moved back along the camera ray from
     ``joint`` (the visible root part's centre, or its end) to the depth of the body's axis
     there: the single-view correction of :func:`pointrig.view.view_depth_correct` on the rest
@@ -1398,8 +1333,7 @@ def root_axis_joint(rest_points: np.ndarray, joint: np.ndarray,
     :func:`centre_root_joint` does for the body's centre. Only the depth changes;
     ``joint`` is returned unchanged without ``view_camera``."""
     near = _ball_points(rest_points, joint, ball)
-    return _axis_depth(near, np.asarray(joint, dtype=float), view_camera, view_quantile,
-                       view_method)
+    return _axis_depth(near, np.asarray(joint, dtype=float), view_camera, view_quantile)
 
 
 def _ball_points(rest_points: np.ndarray, centre: np.ndarray, ball: float) -> np.ndarray:
@@ -1412,13 +1346,13 @@ def _ball_points(rest_points: np.ndarray, centre: np.ndarray, ball: float) -> np
 
 
 def _axis_depth(near: np.ndarray, c: np.ndarray, view_camera: np.ndarray | None,
-                view_quantile: float, view_method: str) -> np.ndarray:
+                view_quantile: float) -> np.ndarray:
     """``c (3,)`` moved back to the axis depth of the points ``near (n, 3)``, or a copy of it
     without a camera (metres; ``view_depth_correct`` itself returns a copy for a quantile of
     0)."""
     if view_camera is None:
         return np.array(c, dtype=float)
-    return view_depth_correct(near, None, c, view_camera, view_quantile, view_method)
+    return view_depth_correct(near, None, c, view_camera, view_quantile)
 
 
 def output_tree(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np.ndarray,
@@ -1431,23 +1365,21 @@ def output_tree(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np.nda
     body's centre (:func:`tree_centre`, :func:`centre_root_joint`, :func:`reroot`): its head
     joint would otherwise sit at the far end of that limb (``root_end_alignment``), where no
     rig puts a joint. Chains (an arm, a snake) and roots with several children keep their
-    tree, and with ``cfg.root_depth = "axis"`` and a camera their root joint moves back along
-    the camera ray to the body's axis depth (:func:`root_axis_joint`, the correction every
-    other joint gets; the re-rooted centre gets it too). The bones' motions do not change, only
-    which joint heads which bone and where the root joint lies.
+    tree, and with a camera their root joint moves back along the camera ray to the body's
+    axis depth (:func:`root_axis_joint`, the correction every other joint gets; the re-rooted
+    centre gets it too). The bones' motions do not change, only which joint heads which bone
+    and where the root joint lies.
     """
     parent = np.asarray(bone_parent, dtype=np.int64)
     if cfg.leaf_root != "centre" or not leaf_root(parent):
         joints = np.array(joints_rest, dtype=float)
-        if cfg.root_depth == "axis":
-            root = int(np.flatnonzero(parent < 0)[0])
-            joints[root] = root_axis_joint(rest_points, joints[root], view_camera,
-                                           cfg.view_depth_quantile, cfg.view_depth_method)
+        root = int(np.flatnonzero(parent < 0)[0])
+        joints[root] = root_axis_joint(rest_points, joints[root], view_camera,
+                                       cfg.view_depth_quantile)
         return parent, joints
     centre, bone = tree_centre(rest_points, labels, parent, joints_rest,
                                tolerance=cfg.centre_tolerance)
-    joint = centre_root_joint(rest_points, centre, view_camera, cfg.view_depth_quantile,
-                              cfg.view_depth_method)
+    joint = centre_root_joint(rest_points, centre, view_camera, cfg.view_depth_quantile)
     log.info("root moved from bone %d (a leaf) to bone %d at the body's centre",
              int(np.flatnonzero(parent < 0)[0]), bone)
     return reroot(parent, joints_rest, bone, joint)
@@ -1562,7 +1494,7 @@ def split_bent_leaves(rest_points: np.ndarray, labels: np.ndarray, bone_parent: 
     is straight; where a leaf's points bend (:func:`leaf_bend`, at least
     ``cfg.leaf_split_angle_deg``) and two rigid fits of the two pieces to the registered points
     leave at most ``cfg.leaf_split_max_ratio`` of one fit's squared residual, the points past
-    the bend become a child bone whose head joint is the bend (docs/structure.md "Session 57").
+    the bend become a child bone whose head joint is the bend (docs/structure.md).
     Either test alone fires on heads, torso pieces and limbs cut lengthwise. A leaf that one
     rigid motion fits to 0.1 % of the subject size (RMS) is left whole. With
     ``cfg.max_joints > 0`` the output keeps at most that many bones: the splits with the
@@ -1764,7 +1696,7 @@ def reroot(bone_parent: np.ndarray, joints_rest: np.ndarray, new_root: int,
     while parent[path[-1]] >= 0:
         path.append(int(parent[path[-1]]))
     old_joint = {k: joints[k].copy() for k in path}
-    for child, par in zip(path[:-1], path[1:]):
+    for child, par in itertools.pairwise(path):
         parent[par] = child
         joints[par] = old_joint[child]
     parent[new_root] = -1

@@ -1,16 +1,14 @@
 """Single-view geometry: a depth camera sees only the near side of every part.
 
-Step 2's boundary centroids ``c~`` (Eq. 20) and step 3's joint prior are averages of *visible*
-rest points, so on single-view data they sit on the near surface, in front of the joint by a
-fraction of the part's thickness. :func:`view_depth_correct` moves ``c~`` back along the ray
-(never towards the camera) to an estimate of the depth of the part's axis: by default the front
-depth of the points that define ``c~`` plus the radius of a round cross-section read from their
-spread across the view; the session-6 rule, a high quantile of their depths (silhouette points
-reach the axis depth), falls short because a depth camera samples the silhouette thinly and
-loses it first.
-:func:`two_layer_fraction` tells single-view input (one surface layer along every ray from the
-camera) from two-sided or fused input, where the correction must stay off. docs/structure.md
-("Session 6" and "Session 13") has the derivations and the ablations.
+Step 2's boundary centroids ``c~`` (Eq. 20) are averages of *visible* rest points, so on
+single-view data they sit on the near surface, in front of the joint by a fraction of the
+part's thickness. :func:`view_depth_correct` moves ``c~`` back along the ray (never towards the
+camera) to an estimate of the depth of the part's axis: the front depth of the points that
+define ``c~`` plus the radius of a round cross-section read from their spread across the view.
+:func:`view_depth_joints` does the same for the output joints from the observed frames (the
+chord rule). :func:`two_layer_fraction` tells single-view input (one surface layer along every
+ray from the camera) from two-sided or fused input, where the correction must stay off.
+docs/structure.md and docs/joints.md have the derivations.
 
 Units: metres. The camera position is in the input frame (the origin for camera-frame clouds).
 """
@@ -24,10 +22,18 @@ from scipy.spatial import cKDTree
 
 from .kinematics import joint_trajectories
 
-__all__ = ["two_layer_fraction", "is_single_view", "in_view", "view_depth_correct",
-           "image_coordinates", "chord_half_width", "chord_roundness", "chord_depth_offset",
-           "view_depth_joints",
-           "SINGLE_VIEW_MAX_TWO_LAYER"]
+__all__ = [
+    "SINGLE_VIEW_MAX_TWO_LAYER",
+    "chord_depth_offset",
+    "chord_half_width",
+    "chord_roundness",
+    "image_coordinates",
+    "in_view",
+    "is_single_view",
+    "two_layer_fraction",
+    "view_depth_correct",
+    "view_depth_joints",
+]
 
 #: Point sets with more than this fraction of two-layer camera rays are not one depth view
 #: (measured: rest points of single-view sequences 0.04-0.25, two-sided samples 0.41-0.57).
@@ -133,29 +139,20 @@ def _weighted_quantile(x: np.ndarray, w: np.ndarray, q: float) -> float:
 
 
 def view_depth_correct(points: np.ndarray, weights: np.ndarray | None, centre: np.ndarray,
-                       camera: np.ndarray, quantile: float, method: str = "quantile"
-                       ) -> np.ndarray:
+                       camera: np.ndarray, quantile: float) -> np.ndarray:
     """Move ``centre`` away from the camera to the estimated depth of its part's axis.
 
-    Depth is measured along the unit ray ``u`` from ``camera`` through ``centre``. Two
-    estimates of the axis depth ``d_a`` (docs/structure.md, sessions 6 and 13):
-
-    * ``method="quantile"`` (session 6): the (weighted) ``quantile`` of the points' depths
-      ``(p - camera) . u``. Points of a convex cross-section seen from one side reach back to
-      about its centre's depth at the silhouette, so a high quantile estimates the axis depth,
-      if the silhouette is sampled.
-    * ``method="width"`` (session 13): the front depth plus the radius read from the width of
-      the points across the view, ``d_a = d_(1-q) + (s_q - s_(1-q)) / (2 (2q - 1))``, with
-      ``d_(1-q)`` the ``1 - quantile`` depth quantile and ``s`` the points' coordinate along
-      the major axis of their spread perpendicular to ``u``. A depth camera samples the image
-      uniformly, so across a round cross-section of radius ``r`` the coordinate ``s`` is
-      uniform on ``[-r, r]``: its ``q`` and ``1 - q`` quantiles are ``+-(2q - 1) r`` and the
-      estimate is unbiased (the front lies ``r`` in front of the axis). The depth quantile
-      needs the silhouette, which that sampling makes sparse (``|s| > 0.97 r`` holds 3 % of
-      the points, still ``0.24 r`` in front of the axis) and which the sensor loses first:
-      cutting the points beyond a viewing angle ``theta`` shortens the depth reach by
-      ``r cos(theta)`` but the width only by ``r (1 - sin(theta))`` (``theta`` = 70 deg: 0.34 r
-      against 0.06 r).
+    Depth is measured along the unit ray ``u`` from ``camera`` through ``centre``. The axis
+    depth is the front depth plus the radius read from the width of the points across the
+    view, ``d_a = d_(1-q) + (s_q - s_(1-q)) / (2 (2q - 1))``, with ``d_(1-q)`` the
+    ``1 - quantile`` (weighted) quantile of the points' depths ``(p - camera) . u`` and ``s``
+    the points' coordinate along the major axis of their spread perpendicular to ``u``. A
+    depth camera samples the image uniformly, so across a round cross-section of radius ``r``
+    the coordinate ``s`` is uniform on ``[-r, r]``: its ``q`` and ``1 - q`` quantiles are
+    ``+-(2q - 1) r`` and the estimate is unbiased (the front lies ``r`` in front of the axis).
+    Unlike a high quantile of the depths, it does not need the silhouette, which that sampling
+    makes sparse and which the sensor loses first (cutting the points beyond a viewing angle
+    ``theta`` shortens the width only by ``r (1 - sin(theta))``).
 
     The result is ``centre + max(d_a - d_centre, 0) u``: never towards the camera.
 
@@ -170,14 +167,17 @@ def view_depth_correct(points: np.ndarray, weights: np.ndarray | None, centre: n
     camera
         ``(3,)`` camera position, metres.
     quantile
-        In ``[0, 1]``; 0 returns ``centre`` unchanged. ``"width"`` needs ``quantile > 1/2``.
-    method
-        ``"quantile"`` or ``"width"``.
+        ``q`` in ``(1/2, 1]``; 0 returns ``centre`` unchanged.
 
     Returns
     -------
     numpy.ndarray
         ``(3,)`` corrected centre, metres.
+
+    Raises
+    ------
+    ValueError
+        If ``0 < quantile <= 1/2``.
     """
     c = np.asarray(centre, dtype=np.float64)
     P = np.asarray(points, dtype=np.float64)
@@ -193,22 +193,17 @@ def view_depth_correct(points: np.ndarray, weights: np.ndarray | None, centre: n
     w = np.ones(len(d)) if weights is None else np.asarray(weights, dtype=np.float64)
     if not np.sum(w) > 0:
         return c.copy()
-    if method == "width":
-        q = float(quantile)
-        if not q > 0.5:
-            raise ValueError(f"view_depth_correct: the width method needs quantile > 1/2, got {q}")
-        lateral = (P - c) - np.outer((P - c) @ u, u)  # (n, 3) offsets across the view
-        mu = w @ lateral / w.sum()
-        cov = (w[:, None] * (lateral - mu)).T @ (lateral - mu) / w.sum()
-        axis = np.linalg.eigh(cov)[1][:, -1]  # major axis of the spread across the view
-        s = lateral @ axis
-        spread = _weighted_quantile(s, w, q) - _weighted_quantile(s, w, 1.0 - q)
-        radius = spread / (2.0 * (2.0 * q - 1.0))  # s uniform on [-r, r]: spread = 2 (2q - 1) r
-        da = _weighted_quantile(d, w, 1.0 - q) + radius
-    elif method == "quantile":
-        da = _weighted_quantile(d, w, quantile)
-    else:
-        raise ValueError(f"view_depth_correct: unknown method {method!r}")
+    q = float(quantile)
+    if not q > 0.5:
+        raise ValueError(f"view_depth_correct: quantile must be above 1/2, got {q}")
+    lateral = (P - c) - np.outer((P - c) @ u, u)  # (n, 3) offsets across the view
+    mu = w @ lateral / w.sum()
+    cov = (w[:, None] * (lateral - mu)).T @ (lateral - mu) / w.sum()
+    axis = np.linalg.eigh(cov)[1][:, -1]  # major axis of the spread across the view
+    s = lateral @ axis
+    spread = _weighted_quantile(s, w, q) - _weighted_quantile(s, w, 1.0 - q)
+    radius = spread / (2.0 * (2.0 * q - 1.0))  # s uniform on [-r, r]: spread = 2 (2q - 1) r
+    da = _weighted_quantile(d, w, 1.0 - q) + radius
     return c + max(da - n, 0.0) * u
 
 
@@ -356,7 +351,7 @@ def chord_depth_offset(points: np.ndarray, joint: np.ndarray, camera: np.ndarray
     (the ``front_quantile`` of the depths of ``points`` seen within ``radius`` metres of the
     joint across the view) plus the half-width of the silhouette's shortest chord through that
     pixel (:func:`chord_half_width`, scaled to metres at the front depth): a round limb is as
-    deep as it is wide. docs/joints.md ("Session 47") has the measurements.
+    deep as it is wide.
 
     Parameters
     ----------
@@ -427,7 +422,6 @@ def _nanmedian0(x: np.ndarray, empty: float) -> np.ndarray:
 def view_depth_joints(frames: Sequence[np.ndarray], registered: np.ndarray, labels: np.ndarray,
                       bone_parent: np.ndarray, joints_rest: np.ndarray, R: np.ndarray,
                       T: np.ndarray, camera: np.ndarray, *, n_frames: int = 10,
-                      points: str = "visible", direction: str = "both",
                       band_spacings: float = 4.5, gap_spacings: float = 6.0,
                       radius_fraction: float = 0.02, label_fraction: float = 0.03,
                       visible_fraction: float = 0.01, min_roundness: float = 0.7,
@@ -437,30 +431,25 @@ def view_depth_joints(frames: Sequence[np.ndarray], registered: np.ndarray, labe
 
     In ``n_frames`` frames spread over the sequence, each joint's offset to its part's axis
     depth is read from the observed points by :func:`chord_depth_offset`, and the median over
-    the frames is taken. Which observed points form the silhouette (``points``):
+    the frames is taken. Three silhouettes give three readings:
 
-    * ``"all"``: every observed point (a part in front of the joint's pixel, or behind it
-      within the chord, counts as its own);
-    * ``"adjacent"``: the points labelled with the joint's two bones (bone ``b`` and its
-      parent; the root: its bone and children), each observed point taking the label of the
-      nearest registered point if one lies within ``label_fraction`` of the subject size;
-    * ``"child"``: the points labelled with bone ``b`` alone (misses a joint at the very end
-      of its bone, or hidden behind its parent);
-    * ``"consensus"``: the joint moves only where the three readings above agree in sign (all
-      say behind, or all in front), by their median. Each reading fails in its own way
-      (occluders, wrong labels, flat parts whose image width is not their depth), and
-      docs/joints.md ("Session 47") measures the consensus against each;
-    * ``"visible"`` (default): ``"all"`` where its two failures are ruled out, the consensus
-      elsewhere. No occluder: the front depth at the joint's pixel read from the joint's own
-      bone is within ``visible_fraction`` of the subject size of the front read from all
-      points (the bone itself is what the camera sees there). Round: the depth profile along
-      the shortest chord is that of a circle, :func:`chord_roundness` between
-      ``min_roundness`` and ``max_roundness`` (a flat part reads near 0; a thin part in front
-      of a wider one, whose chord runs on over it, reads a step far above 1). Where the
-      profile is flat (roundness below ``flat_roundness``) the silhouette's width says nothing
-      of the depth, and the joint stays. Medians over the frames. docs/joints.md
-      ("Session 48").
+    * all observed points (a part in front of the joint's pixel, or behind it within the
+      chord, counts as its own);
+    * the points labelled with the joint's two bones (bone ``b`` and its parent; the root: its
+      bone and children), each observed point taking the label of the nearest registered
+      point if one lies within ``label_fraction`` of the subject size;
+    * the points labelled with bone ``b`` alone.
 
+    Each fails in its own way (occluders, wrong labels, flat parts whose image width is not
+    their depth). The joint takes the reading of all points where its two failures are ruled
+    out. No occluder: the front depth at the joint's pixel read from the joint's own bone is
+    within ``visible_fraction`` of the subject size of the front read from all points (the
+    bone itself is what the camera sees there). Round: the depth profile along the shortest
+    chord is that of a circle, :func:`chord_roundness` between ``min_roundness`` and
+    ``max_roundness`` (a flat part reads near 0; a thin part in front of a wider one, whose
+    chord runs on over it, reads a step far above 1). Where the profile is flat (roundness
+    below ``flat_roundness``) the silhouette's width says nothing of the depth, and the joint
+    stays. Elsewhere it moves only where the three readings agree in sign, by their median.
     The joint moves by the result along its rest-frame ray.
 
     Parameters
@@ -481,10 +470,6 @@ def view_depth_joints(frames: Sequence[np.ndarray], registered: np.ndarray, labe
         ``(3,)`` camera position, metres.
     n_frames
         Number of frames read.
-    points
-        ``"visible"``, ``"consensus"``, ``"all"``, ``"adjacent"`` or ``"child"`` (above).
-    direction
-        ``"both"`` moves joints either way; ``"back"`` only away from the camera.
     band_spacings, gap_spacings
         Chord strip half-width and largest gap, in median image spacings of the frame's points.
     radius_fraction
@@ -493,9 +478,9 @@ def view_depth_joints(frames: Sequence[np.ndarray], registered: np.ndarray, labe
     label_fraction
         Largest distance from an observed point to its registered point that labels it.
     visible_fraction, min_roundness, max_roundness, flat_roundness
-        The ``"visible"`` rule's tolerances (above): front depths, fraction of the subject
-        size; the range of the roundness ratio (a circle within 30 % by default); the ratio
-        below which the part is flat.
+        The tolerances above: front depths, fraction of the subject size; the range of the
+        roundness ratio (a circle within 30 % by default); the ratio below which the part is
+        flat.
 
     Returns
     -------
@@ -503,10 +488,6 @@ def view_depth_joints(frames: Sequence[np.ndarray], registered: np.ndarray, labe
         ``(joints (B, 3), shift (B,))``: the moved rest joints (metres) and each joint's move
         along its ray (metres, positive = away from the camera, 0 where undefined).
     """
-    if points not in ("visible", "consensus", "all", "adjacent", "child"):
-        raise ValueError(f"view_depth_joints: unknown points {points!r}")
-    if direction not in ("both", "back"):
-        raise ValueError(f"view_depth_joints: unknown direction {direction!r}")
     parent = np.asarray(bone_parent, dtype=np.int64)
     J0 = np.asarray(joints_rest, dtype=np.float64)
     cam = np.asarray(camera, dtype=np.float64)
@@ -517,17 +498,16 @@ def view_depth_joints(frames: Sequence[np.ndarray], registered: np.ndarray, labe
     shift = np.zeros(B)
     if F == 0 or B == 0 or size <= 0 or n_frames <= 0:
         return J0.copy(), shift
-    combined = points in ("consensus", "visible")
-    readings = ("all", "adjacent", "child") if combined else (points,)
-    bones: dict[str, list[np.ndarray | None]] = {"all": [None] * B, "adjacent": [], "child": []}
+    # the readings' silhouettes: all points (None), the joint's two bones, its own bone
+    bones: list[list[np.ndarray | None]] = [[None] * B, [], []]
     for b in range(B):
         others = [int(parent[b])] if parent[b] >= 0 else list(np.flatnonzero(parent == b))
-        bones["adjacent"].append(np.array([b] + others, dtype=np.int64))
-        bones["child"].append(np.array([b], dtype=np.int64))
+        bones[1].append(np.array([b] + others, dtype=np.int64))
+        bones[2].append(np.array([b], dtype=np.int64))
     idx = np.unique(np.linspace(0, F - 1, min(n_frames, F)).round().astype(np.int64))
     pos = joint_trajectories(J0, np.asarray(R)[idx], np.asarray(T)[idx], parent)  # (K, B, 3)
-    offs = np.full((len(readings), len(idx), B), np.nan)
-    fronts = np.full((len(readings), len(idx), B), np.nan)
+    offs = np.full((3, len(idx), B), np.nan)
+    fronts = np.full((3, len(idx), B), np.nan)
     rnd = np.full((len(idx), B), np.nan)
     for k, f in enumerate(idx):
         X = np.asarray(frames[f], dtype=np.float64)
@@ -542,40 +522,29 @@ def view_depth_joints(frames: Sequence[np.ndarray], registered: np.ndarray, labe
         spacing = float(np.median(cKDTree(uv[ok]).query(uv[ok], k=2)[0][:, 1]))
         if not spacing > 0:
             continue
-        xl = None
-        if any(r != "all" for r in readings):
-            d, nn = cKDTree(np.asarray(registered[f], dtype=np.float64)).query(X)
-            xl = np.where(d <= label_fraction * size, lab[nn], -1)
-        for i, reading in enumerate(readings):
+        d, nn = cKDTree(np.asarray(registered[f], dtype=np.float64)).query(X)
+        xl = np.where(d <= label_fraction * size, lab[nn], -1)
+        for i in range(3):
             for b in range(B):
-                sel = bones[reading][b]
-                part = slice(None) if sel is None or xl is None else np.isin(xl, sel)
+                sel = bones[i][b]
+                part = slice(None) if sel is None else np.isin(xl, sel)
                 front, half, r = _projected_chord_parts(
                     uv[part], z[part], pos[k, b], cam, axis, radius_fraction * size,
-                    band_spacings * spacing, gap_spacings * spacing,
-                    roundness=points == "visible" and reading == "all")
+                    band_spacings * spacing, gap_spacings * spacing, roundness=i == 0)
                 offs[i, k, b], fronts[i, k, b] = front + half, front
-                if reading == "all":
+                if i == 0:
                     rnd[k, b] = r
-    med = np.zeros((len(readings), B))
-    for i in range(len(readings)):
-        med[i] = _nanmedian0(offs[i], 0.0)
-    if combined:
-        sign = np.sign(med)
-        agree = (sign[0] == sign[1]) & (sign[0] == sign[2])
-        shift = np.where(agree, np.median(med, axis=0), 0.0)
-        if points == "visible":
-            f_all, f_own = _nanmedian0(fronts[0], np.nan), _nanmedian0(fronts[2], np.nan)
-            with np.errstate(invalid="ignore"):
-                seen = np.abs(f_all - f_own) < visible_fraction * size
-                ratio = _nanmedian0(rnd, np.nan)
-                round_ = (ratio >= min_roundness) & (ratio <= max_roundness)
-                flat = ratio < flat_roundness
-            shift = np.where(seen & round_, med[0], np.where(flat, 0.0, shift))
-    else:
-        shift = med[0]
-    if direction == "back":
-        shift = np.maximum(shift, 0.0)
+    med = np.stack([_nanmedian0(offs[i], 0.0) for i in range(3)])
+    sign = np.sign(med)
+    agree = (sign[0] == sign[1]) & (sign[0] == sign[2])
+    shift = np.where(agree, np.median(med, axis=0), 0.0)
+    f_all, f_own = _nanmedian0(fronts[0], np.nan), _nanmedian0(fronts[2], np.nan)
+    with np.errstate(invalid="ignore"):
+        seen = np.abs(f_all - f_own) < visible_fraction * size
+        ratio = _nanmedian0(rnd, np.nan)
+        round_ = (ratio >= min_roundness) & (ratio <= max_roundness)
+        flat = ratio < flat_roundness
+    shift = np.where(seen & round_, med[0], np.where(flat, 0.0, shift))
     ray = J0 - cam
     n = np.linalg.norm(ray, axis=1, keepdims=True)
     out = J0 + shift[:, None] * np.divide(ray, n, out=np.zeros_like(ray), where=n > 0)

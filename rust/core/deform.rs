@@ -65,13 +65,6 @@ pub struct DataTerm<'a> {
 pub struct Weights {
     pub beta_smooth: f64,
     pub beta_small: f64,
-    /// Robust E_smooth (pointrig deviation): with `c > 0` each edge residual `r` counts as
-    /// the Cauchy loss `s^2 log(1 + |r|^2 / s^2)`, `s = c * |n_k - n_j|`, minimised by
-    /// iteratively reweighted least squares (weight `1 / (1 + |r|^2 / s^2)` per edge, fixed
-    /// within a Gauss-Newton step). Sliding spreads small residuals over many edges and stays
-    /// fully penalised; a bending joint concentrates large residuals on the few edges that
-    /// cross it, which are down-weighted. 0 = the paper's quadratic Eq. 6.
-    pub robust: f64,
 }
 
 /// The deformation graph: rest points, nodes, point-node weights and node-node edges.
@@ -296,45 +289,16 @@ impl Graph {
 
     /// `E_smooth` of Eq. 6 (edge weights 1).
     pub fn e_smooth(&self, st: &NodeState) -> f64 {
-        self.e_smooth_robust(st, 0.0)
-    }
-
-    /// Residual of edge `e` (Eq. 6) and its rest length.
-    fn edge_residual(&self, st: &NodeState, e: usize) -> (Vector3<f64>, f64) {
-        let (j, k) = self.edges[e];
-        let n = &self.nodes;
-        let b = n[k] - n[j];
-        (st.r[j] * b + n[j] + st.t[j] - n[k] - st.t[k], b.norm())
-    }
-
-    /// Loss and IRLS weight of edge `e` under the Cauchy loss of [`Weights::robust`]
-    /// (`c = 0`: the quadratic Eq. 6 term, weight 1).
-    fn edge_cauchy(&self, st: &NodeState, e: usize, c: f64) -> (f64, f64) {
-        let (r, len) = self.edge_residual(st, e);
-        let r2 = r.norm_squared();
-        let s2 = (c * len).powi(2);
-        if c > 0.0 && s2 > 0.0 {
-            (s2 * (r2 / s2).ln_1p(), 1.0 / (1.0 + r2 / s2))
-        } else {
-            (r2, 1.0)
-        }
-    }
-
-    /// `E_smooth` with the Cauchy loss of [`Weights::robust`] (`c = 0`: Eq. 6).
-    pub fn e_smooth_robust(&self, st: &NodeState, c: f64) -> f64 {
         (0..self.edges.len())
-            .map(|e| self.edge_cauchy(st, e, c).0)
+            .map(|e| self.edge_residual(st, e).norm_squared())
             .sum()
     }
 
-    /// IRLS weights of the robust E_smooth at `st` (all 1 when `c = 0`).
-    fn edge_weights(&self, st: &NodeState, c: f64) -> Vec<f64> {
-        if !(c > 0.0) {
-            return vec![1.0; self.edges.len()];
-        }
-        (0..self.edges.len())
-            .map(|e| self.edge_cauchy(st, e, c).1)
-            .collect()
+    /// Residual of edge `e` (Eq. 6), `R_j (n_k - n_j) + n_j + T_j - (n_k + T_k)`.
+    fn edge_residual(&self, st: &NodeState, e: usize) -> Vector3<f64> {
+        let (j, k) = self.edges[e];
+        let n = &self.nodes;
+        st.r[j] * (n[k] - n[j]) + n[j] + st.t[j] - n[k] - st.t[k]
     }
 
     /// `E_small` of Eq. 7.
@@ -365,7 +329,7 @@ impl Graph {
         let y = self.deform(st);
         Self::data_sq(&y, d) / (2.0 * d.sigma2)
             + 1.5 * d.n_p * d.sigma2.ln()
-            + 0.5 * w.beta_smooth * self.e_smooth_robust(st, w.robust)
+            + 0.5 * w.beta_smooth * self.e_smooth(st)
             + 0.5 * w.beta_small * Self::e_small(st, pre)
     }
 
@@ -470,8 +434,7 @@ impl Graph {
         let jn = self.nodes.len();
         let kk = self.k;
         let inv_s2 = 1.0 / d.sigma2;
-        let beta0 = w.beta_smooth;
-        let ew = self.edge_weights(st, w.robust);
+        let beta = w.beta_smooth;
         let id = Matrix3::identity();
         let zero = Matrix3::zeros();
         // Block rows, assembled independently (deterministic, parallel).
@@ -506,9 +469,8 @@ impl Graph {
                         blocks[pos(kb)] += (a * wa * wb) * blk;
                     }
                 }
-                if beta0 > 0.0 {
+                if beta > 0.0 {
                     for &e in &self.edges_out[j] {
-                        let beta = beta0 * ew[e];
                         let k = self.edges[e].1;
                         let b = st.r[j] * (self.nodes[k] - nj);
                         let r = b + nj + st.t[j] - self.nodes[k] - st.t[k];
@@ -520,7 +482,6 @@ impl Graph {
                         blocks[pos(k)] += beta * block6(&zero, &(-s.transpose()), &zero, &(-id));
                     }
                     for &e in &self.edges_in[j] {
-                        let beta = beta0 * ew[e];
                         let k = self.edges[e].0;
                         let nk = self.nodes[k];
                         let b = st.r[k] * (nj - nk);
@@ -657,16 +618,19 @@ pub enum Solver {
     Sweeps,
 }
 
-/// Parameters of [`register_frame`] (see `RegistrationConfig` for meanings and defaults).
+/// Parameters of [`register_frame`] that stay the same for every frame of a sequence (see
+/// `RegistrationConfig` for meanings and defaults). The E-step runs in single precision with
+/// double-precision sums ([`Precision::Single`]).
 #[derive(Debug, Clone, Copy)]
 pub struct FrameParams {
+    /// Outlier weight of Eq. 1.
     pub omega: f64,
     /// `beta_smooth` (absolute), or the ratio `lambda` when `beta_relative`.
     pub beta_smooth: f64,
     /// Use `beta_smooth_eff = lambda * N_p / (sigma^2 * n_edges)` each iteration.
     pub beta_relative: bool,
     pub beta_small: f64,
-    pub sigma2_start: f64,
+    /// Floor of Eq. 12, m^2.
     pub sigma2_min: f64,
     /// Coarse-to-fine schedule: during the first `k` iterations, with
     /// `k = ceil(log(sigma2_start / anneal_floor) / log(1 / anneal))`, sigma^2 is capped at
@@ -675,33 +639,31 @@ pub struct FrameParams {
     pub anneal: f64,
     pub anneal_floor: f64,
     pub max_iter: usize,
+    /// Relative change of Eq. 8a that stops the EM.
     pub tol: f64,
+    /// Truncated E-step: pairs beyond `cutoff * sigma` ignored; `None` = dense.
     pub cutoff: Option<f64>,
-    pub precision: Precision,
-    pub rigid_iters: usize,
     pub solver: Solver,
+    /// Levenberg damping, CG tolerance and iteration cap of [`Graph::gauss_newton_step`].
     pub damping: f64,
     pub cg_tol: f64,
     pub cg_max: usize,
     /// Coarse-data E-step: while the voxel grid of side `subsample * sigma` holds fewer than
     /// half as many cells as data points, the E-step runs on the voxel centroids weighted by
-    /// their point counts ([`voxel_downsample`], [`estep_weighted`]); 0 = always full data.
+    /// their point counts ([`voxel_downsample_with`], [`estep_weighted`]); 0 = always full
+    /// data.
     pub subsample: f64,
     /// Early stop (after the coarse phase): the RMS displacement of the deformed template in
     /// one iteration falls below `motion_tol * sigma`; 0 = off.
     pub motion_tol: f64,
-    /// Robust E_smooth scale `c` (see [`Weights::robust`]); 0 = quadratic (paper).
-    pub robust: f64,
-    /// Density-normalised data (fine stage): with `voxel_min > 0` the "full" data is the set
-    /// of voxel centroids of side `voxel_min` (metres) each weighted 1, so the GMM sees a
-    /// uniform surface density whatever the viewing angle (foreshortening would otherwise
-    /// pull template points towards the surfaces facing the camera). 0 = raw points.
-    pub voxel_min: f64,
     /// Normal agreement (pointrig deviation): with `kappa > 0`, rest normals on the graph and
     /// data normals given, each posterior carries the von Mises-Fisher factor
     /// `exp(kappa (n_i . n~_m - 1))` ([`estep_normals`]); 0 = positions only (paper).
     pub kappa: f64,
 }
+
+/// Precision of [`register_frame`]'s E-step.
+const PRECISION: Precision = Precision::Single;
 
 /// Result of [`register_frame`].
 #[derive(Debug, Clone)]
@@ -724,7 +686,7 @@ fn flat(y: &[Vector3<f64>]) -> Vec<f64> {
 
 /// Algorithm 1 for one frame: EM from the node transforms `init` against data `x` (N, 3),
 /// with optional data normals `xn` (N, 3) used when `p.kappa > 0` and the graph has rest
-/// normals ([`FrameParams::kappa`]).
+/// normals ([`FrameParams::kappa`]), starting at `sigma2_start` (m^2).
 ///
 /// Each iteration: E-step (Eq. 4, truncated if `cutoff`), then a rigid Kabsch step
 /// (first `rigid_iters` iterations) or the M-step solver, then sigma^2 by Eq. 12 (floored at
@@ -736,16 +698,18 @@ pub fn register_frame(
     x: &[f64],
     xn: Option<&[f64]>,
     p: &FrameParams,
+    sigma2_start: f64,
+    rigid_iters: usize,
 ) -> CoreResult<FrameResult> {
     g.check_state(&init)?;
-    if !(p.sigma2_start > 0.0 && p.sigma2_start.is_finite()) || !(p.sigma2_min > 0.0) {
+    if !(sigma2_start > 0.0 && sigma2_start.is_finite()) || !(p.sigma2_min > 0.0) {
         return Err(CoreError::InvalidInput(
             "sigma2_start and sigma2_min must be positive".into(),
         ));
     }
     let n = x.len() / 3;
     let mut st = init;
-    let mut s2 = p.sigma2_start.max(p.sigma2_min);
+    let mut s2 = sigma2_start.max(p.sigma2_min);
     let mut e_prev: Option<f64> = None;
     let mut energy = f64::NAN;
     let mut n_p = 0.0;
@@ -783,13 +747,6 @@ pub fn register_frame(
         }
         (c, w, nm)
     };
-    let fine: Option<(Vec<f64>, Vec<f64>, Vec<f64>)> = (p.voxel_min > 0.0).then(|| {
-        let (c, w, nm) = downsample(p.voxel_min);
-        let ones = vec![1.0; w.len()];
-        (c, ones, nm)
-    });
-    // Data mass of the fine stage (N, or the number of unit-weight voxels).
-    let n_full = fine.as_ref().map_or(n, |f| f.1.len());
     let any_estep = |y: &[f64], yn: &[f64], xs: &[f64], ws: Option<&[f64]>, xns: &[f64], s2| {
         if xn.is_some() {
             let nr = Normals {
@@ -797,15 +754,13 @@ pub fn register_frame(
                 x: xns,
                 kappa: p.kappa,
             };
-            estep_normals(y, xs, ws, nr, s2, p.omega, p.cutoff, p.precision)
+            estep_normals(y, xs, ws, nr, s2, p.omega, p.cutoff, PRECISION)
         } else {
-            estep_weighted(y, xs, ws, s2, p.omega, p.cutoff, p.precision)
+            estep_weighted(y, xs, ws, s2, p.omega, p.cutoff, PRECISION)
         }
     };
-    let full_estep = |y: &[f64], yn: &[f64], s2: f64| match &fine {
-        None => any_estep(y, yn, x, None, xn.unwrap_or(&[]), s2),
-        Some((c, w, nm)) => any_estep(y, yn, c, Some(w), nm, s2),
-    };
+    let full_estep =
+        |y: &[f64], yn: &[f64], s2: f64| any_estep(y, yn, x, None, xn.unwrap_or(&[]), s2);
     for it in 0..p.max_iter {
         let y = flat(&y_cur);
         let yn = if xn.is_some() {
@@ -817,7 +772,7 @@ pub fn register_frame(
             full_estep(&y, &yn, s2)?
         } else {
             let (xs, ws, nm) = downsample(p.subsample * s2.sqrt());
-            if 2 * ws.len() >= n_full {
+            if 2 * ws.len() >= n {
                 full_data = true;
                 full_estep(&y, &yn, s2)?
             } else {
@@ -825,7 +780,7 @@ pub fn register_frame(
             }
         };
         n_p = es.stats.n_p;
-        if !(n_p > 1e-9 * n_full as f64) {
+        if !(n_p > 1e-9 * n as f64) {
             break;
         }
         let d = DataTerm {
@@ -843,10 +798,9 @@ pub fn register_frame(
         let w = Weights {
             beta_smooth: beta,
             beta_small: p.beta_small,
-            robust: p.robust,
         };
         let pre = st.clone();
-        if it < p.rigid_iters {
+        if it < rigid_iters {
             g.rigid_step(&mut st, &d);
         } else {
             match p.solver {
@@ -867,7 +821,7 @@ pub fn register_frame(
         .max(p.sigma2_min);
         energy = dsq / (2.0 * s2_new)
             + 1.5 * n_p * s2_new.ln()
-            + 0.5 * beta * g.e_smooth_robust(&st, p.robust)
+            + 0.5 * beta * g.e_smooth(&st)
             + 0.5 * p.beta_small * Graph::e_small(&st, &pre);
         iterations = it + 1;
         history.push((s2_new, energy));
@@ -879,7 +833,7 @@ pub fn register_frame(
             / yn.len().max(1) as f64)
             .sqrt();
         y_cur = yn;
-        let settled = it >= p.rigid_iters.max(k_coarse)
+        let settled = it >= rigid_iters.max(k_coarse)
             && ((p.motion_tol > 0.0 && motion <= p.motion_tol * s2_new.sqrt())
                 || e_prev
                     .is_some_and(|e0| (energy - e0).abs() <= p.tol * energy.abs().max(1e-300)));
@@ -906,7 +860,7 @@ pub fn register_frame(
         iterations,
         energy,
         n_p,
-        n_data: n_full,
+        n_data: n,
         history,
     })
 }
@@ -963,7 +917,6 @@ mod tests {
         let w = Weights {
             beta_smooth: 10.0,
             beta_small: 1.0,
-            robust: 0.0,
         };
         let mut st = NodeState::identity(g.n_nodes());
         let pre = st.clone();

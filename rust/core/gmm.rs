@@ -24,8 +24,8 @@
 //! double, ~2e-7 in single) that returns exactly 0 below `EXP_FLOOR_*` (`e^-60` ~ 9e-27 in
 //! single, `e^-600` ~ 3e-261 in double). The floors sit far enough above the normal range
 //! that no product of the kernels (`e * inv * x`) becomes subnormal: a subnormal operand costs
-//! ~100 cycles, and before the floor was raised from the underflow limit the dense f32 kernel
-//! ran 2-5x slower whenever sigma was a few centimetres. The floor changes a posterior row by
+//! ~100 cycles (a floor at the underflow limit would slow the dense f32 kernel down several
+//! times whenever sigma is a few centimetres). The floor changes a posterior row by
 //! at most `2 M e^-60 / c0` in L1 (below 1e-12 for sigma >= 1 mm, M <= 1e5); the truncation
 //! bound below does not count it.
 

@@ -672,7 +672,7 @@ pub fn sweep_paper(
 ///
 /// `smooth` (empty = off, else one weight `lambda_j >= 0` per bone) adds the temporal term
 /// `sum_j lambda_j/2 sum_t |R_j^(t-1) - 2 R_j^t + R_j^(t+1)|_F^2` (our deviation,
-/// docs/joints.md "Session 29"): the rotations' second differences, so a bone turning at a
+/// docs/joints.md): the rotations' second differences, so a bone turning at a
 /// steady rate pays nothing. With `|R|_F^2 = 3` the term is linear in each frame's rotation:
 /// in the interior, `lambda_j (4 (R^(t-1) + R^(t+1)) - R^(t-2) - R^(t+2)) R_j^T` enters the
 /// correlation matrix of each moved bone. The frames `t mod 3 = 0, 1, 2` are updated in turn

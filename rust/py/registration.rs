@@ -161,7 +161,7 @@ impl DeformGraph {
 
     /// Eq. 8a from the E-step statistics.
     #[allow(clippy::too_many_arguments)]
-    #[pyo3(signature = (r, t, r_pre, t_pre, p1, px, sum_x2, n_p, sigma2, beta_smooth, beta_small, robust=0.0))]
+    #[pyo3(signature = (r, t, r_pre, t_pre, p1, px, sum_x2, n_p, sigma2, beta_smooth, beta_small))]
     fn energy(
         &self,
         py: Python<'_>,
@@ -176,7 +176,6 @@ impl DeformGraph {
         sigma2: f64,
         beta_smooth: f64,
         beta_small: f64,
-        robust: f64,
     ) -> PyResult<f64> {
         let j = self.g.n_nodes();
         let st = read_state(py, &r, &t, j)?;
@@ -196,7 +195,6 @@ impl DeformGraph {
             &Weights {
                 beta_smooth,
                 beta_small,
-                robust,
             },
         ))
     }
@@ -246,7 +244,6 @@ impl DeformGraph {
             &Weights {
                 beta_smooth,
                 beta_small,
-                robust: 0.0,
             },
         );
         let rv: Vec<f64> = (0..3)
@@ -261,7 +258,7 @@ impl DeformGraph {
 
     /// One joint Gauss-Newton step on all nodes; returns the new `(R (J,3,3), T (J,3))`.
     #[allow(clippy::too_many_arguments)]
-    #[pyo3(signature = (r, t, p1, px, sigma2, beta_smooth, beta_small, damping=0.0, cg_tol=1e-8, cg_max=500, robust=0.0))]
+    #[pyo3(signature = (r, t, p1, px, sigma2, beta_smooth, beta_small, damping=0.0, cg_tol=1e-8, cg_max=500))]
     fn gauss_newton_step<'py>(
         &self,
         py: Python<'py>,
@@ -275,7 +272,6 @@ impl DeformGraph {
         damping: f64,
         cg_tol: f64,
         cg_max: usize,
-        robust: f64,
     ) -> PyResult<(Bound<'py, PyArray3<f64>>, Bound<'py, PyArray2<f64>>)> {
         let mut st = read_state(py, &r, &t, self.g.n_nodes())?;
         let (p1s, pxs) = self.data(py, &p1, &px)?;
@@ -292,7 +288,6 @@ impl DeformGraph {
         let w = Weights {
             beta_smooth,
             beta_small,
-            robust,
         };
         py.detach(|| {
             self.g
@@ -301,41 +296,22 @@ impl DeformGraph {
         write_state(py, &st)
     }
 
-    /// Algorithm 1 on one frame from node transforms `(r, t)`; returns a dict with `R`, `T`,
-    /// `points` (M, 3), `sigma2`, `iterations`, `energy`, `n_p`, `n_data`, `history` (k, 2).
+    /// Algorithm 1 on one frame from node transforms `(r, t)` with the sequence's `params`,
+    /// starting at `sigma2_start` (m^2) with `rigid_iters` rigid iterations; returns a dict
+    /// with `R`, `T`, `points` (M, 3), `sigma2`, `iterations`, `energy`, `n_p`, `n_data`,
+    /// `history` (k, 2).
     #[allow(clippy::too_many_arguments)]
-    #[pyo3(signature = (x, r, t, *, sigma2_start, omega, beta_smooth, beta_relative, beta_small,
-        sigma2_min, anneal, anneal_floor, max_iter, tol, cutoff, single, rigid_iters, solver, damping, cg_tol, cg_max,
-        subsample=0.0, motion_tol=0.0, voxel_min=0.0, robust=0.0, x_normals=None, kappa=0.0))]
+    #[pyo3(signature = (x, r, t, params, *, sigma2_start, rigid_iters, x_normals=None))]
     fn register_frame<'py>(
         &self,
         py: Python<'py>,
         x: PyReadonlyArray2<'py, f64>,
         r: PyReadonlyArray3<'py, f64>,
         t: PyReadonlyArray2<'py, f64>,
+        params: &PyFrameParams,
         sigma2_start: f64,
-        omega: f64,
-        beta_smooth: f64,
-        beta_relative: bool,
-        beta_small: f64,
-        sigma2_min: f64,
-        anneal: f64,
-        anneal_floor: f64,
-        max_iter: usize,
-        tol: f64,
-        cutoff: Option<f64>,
-        single: bool,
         rigid_iters: usize,
-        solver: &str,
-        damping: f64,
-        cg_tol: f64,
-        cg_max: usize,
-        subsample: f64,
-        motion_tol: f64,
-        voxel_min: f64,
-        robust: f64,
         x_normals: Option<PyReadonlyArray2<'py, f64>>,
-        kappa: f64,
     ) -> PyResult<Bound<'py, PyDict>> {
         let xs = points(py, &x, "x")?;
         let xn = match &x_normals {
@@ -343,45 +319,9 @@ impl DeformGraph {
             None => None,
         };
         let st = read_state(py, &r, &t, self.g.n_nodes())?;
-        let solver = match solver {
-            "gauss_newton" => Solver::GaussNewton,
-            "sweeps" => Solver::Sweeps,
-            other => {
-                return Err(PyValueError::new_err(format!(
-                    "solver must be 'gauss_newton' or 'sweeps', got {other:?}"
-                )))
-            }
-        };
-        let p = FrameParams {
-            omega,
-            beta_smooth,
-            beta_relative,
-            beta_small,
-            sigma2_start,
-            sigma2_min,
-            anneal,
-            anneal_floor,
-            max_iter,
-            tol,
-            cutoff,
-            precision: if single {
-                Precision::Single
-            } else {
-                Precision::Double
-            },
-            rigid_iters,
-            solver,
-            damping,
-            cg_tol,
-            cg_max,
-            subsample,
-            motion_tol,
-            voxel_min,
-            robust,
-            kappa,
-        };
+        let p = params.p;
         let res = py
-            .detach(|| deform::register_frame(&self.g, st, xs, xn, &p))
+            .detach(|| deform::register_frame(&self.g, st, xs, xn, &p, sigma2_start, rigid_iters))
             .map_err(|e| to_pyerr(py, e))?;
         let d = PyDict::new(py);
         let (r, t) = write_state(py, &res.state)?;
@@ -396,6 +336,76 @@ impl DeformGraph {
         let h: Vec<f64> = res.history.iter().flat_map(|&(a, b)| [a, b]).collect();
         d.set_item("history", to_array2(py, h, 2)?)?;
         Ok(d)
+    }
+}
+
+/// The parameters of `DeformGraph.register_frame` that stay the same for every frame of a
+/// sequence (`deform::FrameParams`), built once from `RegistrationConfig`.
+#[pyclass(module = "pointrig._core", name = "FrameParams", frozen)]
+struct PyFrameParams {
+    p: FrameParams,
+}
+
+#[pymethods]
+impl PyFrameParams {
+    #[new]
+    #[allow(clippy::too_many_arguments)]
+    #[pyo3(signature = (*, omega, beta_smooth, beta_relative, beta_small, sigma2_min, anneal,
+        anneal_floor, max_iter, tol, cutoff, solver, damping, cg_tol, cg_max, subsample=0.0,
+        motion_tol=0.0, kappa=0.0))]
+    fn new(
+        omega: f64,
+        beta_smooth: f64,
+        beta_relative: bool,
+        beta_small: f64,
+        sigma2_min: f64,
+        anneal: f64,
+        anneal_floor: f64,
+        max_iter: usize,
+        tol: f64,
+        cutoff: Option<f64>,
+        solver: &str,
+        damping: f64,
+        cg_tol: f64,
+        cg_max: usize,
+        subsample: f64,
+        motion_tol: f64,
+        kappa: f64,
+    ) -> PyResult<Self> {
+        let solver = match solver {
+            "gauss_newton" => Solver::GaussNewton,
+            "sweeps" => Solver::Sweeps,
+            other => {
+                return Err(PyValueError::new_err(format!(
+                    "solver must be 'gauss_newton' or 'sweeps', got {other:?}"
+                )))
+            }
+        };
+        Ok(PyFrameParams {
+            p: FrameParams {
+                omega,
+                beta_smooth,
+                beta_relative,
+                beta_small,
+                sigma2_min,
+                anneal,
+                anneal_floor,
+                max_iter,
+                tol,
+                cutoff,
+                solver,
+                damping,
+                cg_tol,
+                cg_max,
+                subsample,
+                motion_tol,
+                kappa,
+            },
+        })
+    }
+
+    fn __repr__(&self) -> String {
+        format!("FrameParams({:?})", self.p)
     }
 }
 
@@ -565,5 +575,6 @@ pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(farthest_point_sampling, m)?)?;
     m.add_function(wrap_pyfunction!(kth_nn_distances, m)?)?;
     m.add_class::<DeformGraph>()?;
+    m.add_class::<PyFrameParams>()?;
     Ok(())
 }
