@@ -2,10 +2,9 @@
 
 The reference (serial) form runs the same arithmetic one thing at a time and without the Rust
 nearest-neighbour grid (``rust/core/nearest.rs``): a tracked frame's two hypotheses fitted one
-after the other (``pointrig.joints._TRACK_WORKERS = 1``), the refinement's frames registered
-one after the other (``pointrig.registration._REFINE_WORKERS = 1``), step 1's forward and
-backward chains one after the other (``pointrig.registration._CHAIN_WORKERS = 1``), step 2's
-ensemble seeds one after the other (``pointrig.structure._ENSEMBLE_WORKERS = 1``), the chamfer
+after the other, the refinement's frames registered one after the other, step 1's forward and
+backward chains one after the other and step 2's ensemble seeds one after the other (``workers
+= 1`` in ``[registration]``, ``[structure]`` and ``[joints]``, :func:`serial_config`), the chamfer
 misfit on scipy k-d trees searching every nearest neighbour to the end, farthest-point sampling
 as a numpy loop, and the sparse-point filter and the nearest distances (step 1's start sigma^2,
 the tracker's start tau) on scipy k-d trees. Both forms give the same skeleton, which the
@@ -21,6 +20,7 @@ Each form runs ``--repeats`` times, alternating, and the fastest run of each is 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager, nullcontext
@@ -38,16 +38,13 @@ from pointrig.pipeline import extract
 from pointrig.sequence import PointSequence
 
 STAGES = ("clean-up", "registration", "structure", "joints", "refinement")
-#: the thread counts the serial form sets to 1
-WORKERS = ((joints_mod, "_TRACK_WORKERS"), (reg_mod, "_REFINE_WORKERS"),
-           (reg_mod, "_CHAIN_WORKERS"), (structure_mod, "_ENSEMBLE_WORKERS"))
 #: the module functions the serial form replaces by its reference forms (and restores)
 FUNCTIONS = ((joints_mod, "chamfer_misfit"), (reg_mod, "chamfer_misfit"),
              (pre_mod, "farthest_point_sampling"), (reg_mod, "farthest_point_sampling"),
              (pre_mod, "remove_sparse_points"), (reg_mod, "nearest_distances"),
              (joints_mod, "nearest_distances"))
 #: everything the serial form changes (and restores)
-PATCHED = WORKERS + FUNCTIONS
+PATCHED = FUNCTIONS
 
 
 def chamfer_full_search(template: np.ndarray, data: np.ndarray, trunc: float) -> float:
@@ -97,11 +94,9 @@ REFERENCE = {"chamfer_misfit": chamfer_full_search, "farthest_point_sampling": f
 
 @contextmanager
 def serial() -> Iterator[None]:
-    """The reference form: every worker count of :data:`WORKERS` 1, the functions of
-    :data:`FUNCTIONS` in their :data:`REFERENCE` forms."""
+    """The reference form's functions: those of :data:`FUNCTIONS` in their :data:`REFERENCE`
+    forms (run it with :func:`serial_config`)."""
     saved = {(mod, name): getattr(mod, name) for mod, name in PATCHED}
-    for mod, name in WORKERS:
-        setattr(mod, name, 1)
     for mod, name in FUNCTIONS:
         setattr(mod, name, REFERENCE[name])
     try:
@@ -109,6 +104,14 @@ def serial() -> Iterator[None]:
     finally:
         for (mod, name), value in saved.items():
             setattr(mod, name, value)
+
+
+def serial_config(cfg: PipelineConfig) -> PipelineConfig:
+    """``cfg`` with one worker in every stage that has a pool."""
+    return dataclasses.replace(
+        cfg, registration=dataclasses.replace(cfg.registration, workers=1),
+        structure=dataclasses.replace(cfg.structure, workers=1),
+        joints=dataclasses.replace(cfg.joints, workers=1))
 
 
 def timed(seq: PointSequence, cfg: PipelineConfig) -> tuple[dict[str, float], np.ndarray]:
@@ -138,7 +141,7 @@ def main(argv: list[str] | None = None) -> int:
         for _ in range(a.repeats):
             for form in ("serial", "default"):
                 with serial() if form == "serial" else nullcontext():
-                    secs, P = timed(seq, cfg)
+                    secs, P = timed(seq, serial_config(cfg) if form == "serial" else cfg)
                 poses[form] = P
                 if form not in best or secs["total"] < best[form]["total"]:
                     best[form] = secs

@@ -13,7 +13,7 @@ same run, with a paired sign-flip p-value over the sequences::
 
     python -m benchmarks.bench_suite                           # the suite, ~9 min
     python -m benchmarks.bench_suite '{}' paper                # against the paper's pipeline
-    python -m benchmarks.bench_suite --repeats 2 '{}' '{"registration": {"rest_frame": "middle"}}'
+    python -m benchmarks.bench_suite --repeats 2 '{}' '{"structure": {"joint_penalty": 0}}'
     python -m benchmarks.bench_suite --set validation          # the held-back set
     python -m benchmarks.bench_suite --frames 40 --only human,hand
 

@@ -221,16 +221,7 @@ def score_joints(joint_positions: np.ndarray, syn: SynthSequence) -> EvalReport:
 
 
 def paper_config() -> PipelineConfig:
-    """The paper's pipeline (Table 1 values, Algorithms 1-2, none of pointrig's additions):
-    the reference the accuracy benchmarks compare the default with.
-
-    This is the one place that builds it: ``PipelineConfig.paper()`` where the package has
-    it, else step 1's :meth:`RegistrationConfig.paper` and step 3 in the paper's mode.
-    """
-    if hasattr(PipelineConfig, "paper"):
-        return PipelineConfig.paper()
-    joints = JointsConfig(mode="paper", gmm_density_normalize=False, weight_candidates="all",
-                          prior_from_weights=False, joint_tolerance=0.0, update_weights=True,
-                          zeta_scale=1.0, tau_init_relative=False, init="structure",
-                          bone_twist="fit")
-    return PipelineConfig(registration=RegistrationConfig.paper(), joints=joints)
+    """The paper's pipeline (Table 1 values, Algorithms 1-2, none of pointrig's additions,
+    :meth:`PipelineConfig.paper`): the reference the accuracy benchmarks compare the default
+    with."""
+    return PipelineConfig.paper()

@@ -10,6 +10,7 @@ from benchmarks import bench_speed
 
 import pointrig.joints as joints_mod
 import pointrig.registration as reg_mod
+from pointrig.config import PipelineConfig
 from pointrig.preprocess import (
     chamfer_misfit,
     farthest_point_sampling,
@@ -32,7 +33,7 @@ def test_full_search_chamfer_equals_the_capped_search() -> None:
         assert chamfer_misfit(a, b, cap) == pytest.approx(ref, rel=1e-12)
 
 
-def test_serial_form_sets_and_restores_the_workers() -> None:
+def test_serial_form_sets_and_restores_its_functions() -> None:
     """Inside ``serial()`` every worker count is 1 and the modules use the reference chamfer;
     afterwards (also after an error) the defaults are back. Every module-level worker count
     of the package is one the serial form sets."""
@@ -41,20 +42,14 @@ def test_serial_form_sets_and_restores_the_workers() -> None:
     before = {(m, n): getattr(m, n) for m, n in bench_speed.PATCHED}
     with pytest.raises(RuntimeError):
         with bench_speed.serial():
-            assert all(getattr(m, n) == 1 for m, n in bench_speed.WORKERS)
             assert joints_mod.chamfer_misfit is bench_speed.chamfer_full_search
             assert reg_mod.chamfer_misfit is bench_speed.chamfer_full_search
             for m, n in bench_speed.FUNCTIONS:
                 assert getattr(m, n) is bench_speed.REFERENCE[n]
             raise RuntimeError("inside")
     assert {(m, n): getattr(m, n) for m, n in bench_speed.PATCHED} == before
-    assert all(v > 1 for (m, n), v in before.items() if n.endswith("_WORKERS"))
-    found = set()
-    for path in Path(pointrig.__file__).parent.glob("*.py"):
-        for line in path.read_text().splitlines():
-            if line.startswith("_") and line.split("=")[0].strip().endswith("_WORKERS"):
-                found.add((path.stem, line.split("=")[0].strip()))
-    assert found == {(m.__name__.rsplit(".", 1)[1], n) for m, n in bench_speed.WORKERS}
+    cfg = bench_speed.serial_config(PipelineConfig())
+    assert (cfg.registration.workers, cfg.structure.workers, cfg.joints.workers) == (1, 1, 1)
 
 
 def test_reference_forms_equal_the_pipeline_s() -> None:
