@@ -155,7 +155,7 @@ def make_config(variant: str) -> PipelineConfig:
         return dataclasses.replace(PipelineConfig(), registration=RegistrationConfig.paper())
     data = json.loads(variant)
     if not isinstance(data, dict):
-        raise ValueError("a variant is a JSON object of per-stage overrides")
+        raise TypeError("a variant is a JSON object of per-stage overrides")
     return apply_overrides(data, where=f"variant {variant}")
 
 
@@ -211,7 +211,7 @@ def _task(args: tuple[str, str, str, str]) -> dict[str, Any]:
     name, seq_path, variant, result_path = args
     try:
         row = run_one(name, seq_path, variant)
-    except Exception:  # a bug, not a pipeline error: report it, keep the other runs going
+    except Exception:  # noqa: BLE001 - a bug, not a pipeline error: report it, run the rest
         row = {"sequence": name, "error": traceback.format_exc(limit=3).strip().splitlines()[-1]}
         return row
     rp = Path(result_path)
@@ -226,6 +226,13 @@ def _synth_task(args: tuple[str, int, str, str]) -> tuple[str, str, float]:
     name, frames, cache, code = args
     path, secs = ensure_sequence(name, frames, Path(cache), code)
     return name, path, secs
+
+
+def _tags(name: str) -> dict[str, str]:
+    """The corpus's current set, category and group of a sequence (cached scores keep the
+    ones of their run)."""
+    q = corpus.SEQUENCES[name]
+    return {"set": q.set, "category": q.category, "group": q.group}
 
 
 def _fmt(row: dict[str, Any] | None) -> str:
@@ -289,7 +296,7 @@ def main(argv: list[str]) -> int:
     try:
         for v in a.variants:
             make_config(v)
-    except (ValueError, AttributeError, PointrigError) as exc:
+    except (ValueError, TypeError, PointrigError) as exc:
         ap.error(f"bad variant: {exc}")
     pool = {"tuning": corpus.TUNING, "check": corpus.CHECK,
             "both": corpus.SEQUENCES}[a.set]
@@ -329,7 +336,7 @@ def main(argv: list[str]) -> int:
         for n in names:
             rp = a.cache / "results" / vkey[:16] / f"{Path(paths[n]).stem}.json"
             if rp.exists() and not a.rerun:
-                rows[(v, n)] = json.loads(rp.read_text())
+                rows[(v, n)] = json.loads(rp.read_text()) | _tags(n)
             else:
                 tasks.append((v, (n, paths[n], var, str(rp))))
     print(f"{'sequence':<24} {'set':<6} {'cat':<10}" +
@@ -360,12 +367,12 @@ def main(argv: list[str]) -> int:
             futs = [(v, ex.submit(_task, t)) for v, t in tasks]
             for v, f in futs:
                 r = f.result()
-                rows[(v, r["sequence"])] = r
+                rows[(v, r["sequence"])] = r | _tags(r["sequence"])
                 show_ready()
     else:
         for v, t in tasks:
             r = _task(t)
-            rows[(v, r["sequence"])] = r
+            rows[(v, r["sequence"])] = r | _tags(r["sequence"])
             show_ready()
     for n in names:
         if n not in shown:

@@ -276,8 +276,8 @@ SUBJECTS: tuple[Subject, ...] = (
     _s("dragon", "creature", "other", 2.0, f"{FBX}Monster_Pack_Animated__Dragon.glb",
        Take(f"{FBX}Monster_Pack_Animated__Dragon.glb", "Dragon_Flying", yaw=-20, camera=320,
             distance=3.5)),
-    _s("eagle", "creature", "animal", 1.8, f"{FBX}Animal_Pack_Vol.2__Eagle.glb",
-       Take(f"{FBX}Animal_Pack_Vol.2__Eagle.glb", "Flying", yaw=20)),
+    _s("chick", "creature", "animal", 0.6, f"{FBX}Animals_Pack__Chick.glb",
+       Take(f"{FBX}Animals_Pack__Chick.glb", "ArmatureAction", yaw=30)),
     _s("spider", "creature", "other", 1.2, f"{Q}easy_enemies_pack__Spider.glb",
        Take(f"{Q}easy_enemies_pack__Spider.glb", "Spider_Walk", yaw=30, camera=320,
             distance=2.5)),
@@ -319,6 +319,8 @@ EXCLUDED: dict[str, str] = {
     f"{Q}fish_pack__Fish3.glb": "near-static: its one clip moves the mesh by 3.5 % of its size",
     f"{FBX}Animal_Pack_Vol.2__Piranha.glb":
         "near-static: its clips move the mesh by at most 3.6 % of its size",
+    f"{FBX}Animal_Pack_Vol.2__Eagle.glb":
+        "a level camera sees its flying clip edge-on: a sheet of wings a few pixels high",
 }
 #: Models that load and move but are in no subject (the time budget of the corpus).
 UNUSED: tuple[str, ...] = (
@@ -326,7 +328,6 @@ UNUSED: tuple[str, ...] = (
     f"{Q}fish_pack__Manta_ray.glb", f"{Q}fish_pack__Shark.glb",
     f"{Q}cyberpunk_pack__Enemy_Flying.glb", f"{Q}platformer_game_pack__Enemy.glb",
     f"{Q}platformer_game_pack__Skull.glb", f"{Q}ultimate_space_pack__Enemy_Flying.glb",
-    f"{FBX}Animals_Pack__Chick.glb",
 )
 
 
@@ -417,8 +418,8 @@ def clip_motion(seq: Sequence, samples: int = 24) -> tuple[str, float, float]:
 
 def table(seqs: dict[str, Sequence]) -> str:
     """A text table of sequences."""
-    rows = [f"{'sequence':<24} {'set':<7} {'category':<11} {'group':<12} {'size':>5} "
-            f"{'cam':>4} {'dist':>5} {'yaw':>5}  model / clip"]
+    rows = [(f"{'sequence':<24} {'set':<7} {'category':<11} {'group':<12} {'size':>5} "
+             f"{'cam':>4} {'dist':>5} {'yaw':>5}  model / clip")]
     for n, q in seqs.items():
         t = q.take
         dist = f"{distance(q):.1f}"
