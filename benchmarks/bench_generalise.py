@@ -7,7 +7,8 @@ the defaults with ``RegistrationConfig.paper()``). Per sequence and variant it p
 precision, joints out / scored ground-truth joints, the normalised error (cm, Helten et al.),
 the share of output joints far (at least 10 % of the subject's size) from EVERY joint of the
 source rig, scored or not (:attr:`pointrig.evaluate.EvalReport.far_fraction`), and the seconds
-the pipeline took; then means per set, and per set and group (human-sized, animal, other) and
+the pipeline took (wall; the CSV also has the CPU seconds of its process, all threads); then
+means per set, and per set and group (human-sized, animal, other) and
 category::
 
     PYTHONPATH=python python benchmarks/bench_generalise.py                 # both sets
@@ -18,9 +19,10 @@ category::
 Synthesized sequences are cached in ``--cache`` (default ``~/.cache/pointrig-corpus``, outside
 the tree; points rounded to float32 on the first run so every variant and re-run sees the
 same points), keyed by the take, the frame count, the model file and pointrig.synth's code.
-Each run's scores are cached there too, keyed by the sequence, the variant and pointrig's code
-(its Python files and compiled core): a re-run of an unchanged variant costs nothing
-(``--rerun`` runs again).
+Each run's output joints are cached there too, keyed by the sequence, the variant and the
+pipeline's code (pointrig's Python files and compiled core, less evaluate.py and synth/): a
+re-run of an unchanged variant costs nothing (``--rerun`` runs again), and every run is scored
+afresh, so a change of the scoring needs no run.
 
 Means: recall, precision, joints out, the far share and seconds over every sequence (a run
 that fails counts as recall 0 and no joints); the normalised error over the sequences where the
@@ -51,7 +53,7 @@ import corpus  # noqa: E402
 import pointrig  # noqa: E402
 from pointrig.config import PipelineConfig, RegistrationConfig, apply_overrides  # noqa: E402
 from pointrig.errors import PointrigError  # noqa: E402
-from pointrig.evaluate import evaluate  # noqa: E402
+from pointrig.evaluate import evaluate, scorable_joints, subject_size  # noqa: E402
 from pointrig.pipeline import extract  # noqa: E402
 from pointrig.sequence import PointSequence  # noqa: E402
 
@@ -60,7 +62,7 @@ DEFAULT_CACHE = Path.home() / ".cache" / "pointrig-corpus"
 CSV_FIELDS = ("variant", "set", "sequence", "subject", "category", "group", "camera", "distance",
               "frames", "recall", "precision", "n_pred", "n_scorable", "n_matched",
               "normalized_error_cm", "raw_error_cm", "far_fraction", "n_far", "subject_size_m",
-              "seconds", "error")
+              "seconds", "cpu_seconds", "error")
 
 
 def _sha1_files(paths: list[Path]) -> str:
@@ -72,10 +74,13 @@ def _sha1_files(paths: list[Path]) -> str:
 
 
 def code_fingerprint() -> str:
-    """SHA-1 of pointrig's Python files and compiled core (results are cached under it)."""
+    """SHA-1 of the pipeline's code: pointrig's Python files and compiled core, less the
+    scoring (evaluate.py) and the synthesis (synth/), which do not change its output (runs are
+    cached under it; scores are computed afresh each time)."""
     root = Path(pointrig.__file__).resolve().parent
-    files = [p for p in root.rglob("*.py")] + list(root.glob("_core*.so")) + \
-        list(root.glob("_core*.pyd"))
+    files = [p for p in root.rglob("*.py")
+             if p.name != "evaluate.py" and "synth" not in p.relative_to(root).parts]
+    files += list(root.glob("_core*.so")) + list(root.glob("_core*.pyd"))
     return _sha1_files(files)
 
 
@@ -159,34 +164,44 @@ def make_config(variant: str) -> PipelineConfig:
     return apply_overrides(data, where=f"variant {variant}")
 
 
-def run_one(name: str, seq_path: str, variant: str) -> dict[str, Any]:
-    """Run the pipeline on one cached sequence and score it (a row of the CSV, less the
-    variant label)."""
-    seq = corpus.SEQUENCES[name]
+def run_pipeline(name: str, seq_path: str, variant: str, out_path: str) -> dict[str, Any]:
+    """Run the pipeline on one cached sequence and save its joints ``(F, P, 3)`` (or its
+    error) with the seconds it took to ``out_path`` (an ``.npz``); returns what was saved."""
     data = load_cached(Path(seq_path))
-    row: dict[str, Any] = {"set": seq.set, "sequence": name, "subject": seq.subject,
-                           "category": seq.category, "group": seq.group,
-                           "camera": seq.take.camera, "distance": seq.take.distance or "auto",
-                           "frames": len(data["frames"]), "error": ""}
     cfg = make_config(variant)
     ps = PointSequence(data["frames"], f"corpus:{name}",
                        [f"frame_{t:04d}" for t in range(len(data["frames"]))], "memory")
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
+    joints = np.zeros((len(data["frames"]), 0, 3))
+    error = ""
     try:
-        out = extract(ps, cfg, None, pictures=False)
-        pred = out.skeleton.joint_positions
+        joints = extract(ps, cfg, None, pictures=False).skeleton.joint_positions
     except PointrigError as exc:
-        row["error"] = f"{type(exc).__name__}: {exc}"
-        pred = None
-    row["seconds"] = time.perf_counter() - t0
-    if pred is None or pred.shape[1] == 0:
-        rep = None
-    else:
-        rep = evaluate(pred, data["gt_joints"], data["parents"], **data["eval"])
-    if rep is None:
-        from pointrig.evaluate import scorable_joints, subject_size
+        error = f"{type(exc).__name__}: {exc}"
+    out = {"joints": np.asarray(joints, dtype=np.float64), "error": np.array(error),
+           "seconds": np.float64(time.perf_counter() - t0),
+           "cpu_seconds": np.float64(time.process_time() - c0)}
+    op = Path(out_path)
+    op.parent.mkdir(parents=True, exist_ok=True)
+    tmp = op.with_suffix(".tmp.npz")
+    np.savez(tmp, **out)
+    tmp.replace(op)
+    return out
 
-        ev = data["eval"]
+
+def score(name: str, seq_path: str, pred_path: str) -> dict[str, Any]:
+    """Score a saved run against its sequence's ground truth (a row of the CSV, less the
+    variant label)."""
+    seq = corpus.SEQUENCES[name]
+    data = load_cached(Path(seq_path))
+    with np.load(pred_path, allow_pickle=False) as z:
+        pred, error = z["joints"], str(z["error"])
+        secs, cpu = float(z["seconds"]), float(z["cpu_seconds"])
+    row: dict[str, Any] = {"sequence": name, "subject": seq.subject, "camera": seq.take.camera,
+                           "distance": corpus.distance(seq), "frames": len(data["frames"]),
+                           "seconds": secs, "cpu_seconds": cpu, "error": error} | _tags(name)
+    ev = data["eval"]
+    if pred.shape[1] == 0:
         mask, _, _ = scorable_joints(data["gt_joints"], data["parents"],
                                      surface=ev["surface"], surface_labels=ev["surface_labels"],
                                      skinned=ev["skinned"],
@@ -199,6 +214,7 @@ def run_one(name: str, seq_path: str, variant: str) -> dict[str, Any]:
                     "far_fraction": float("nan"), "n_far": 0,
                     "subject_size_m": subject_size(data["gt_joints"], ev["surface"])})
         return row
+    rep = evaluate(pred, data["gt_joints"], data["parents"], **ev)
     row.update({"recall": rep.recall, "precision": rep.precision, "n_pred": rep.n_pred,
                 "n_scorable": rep.n_scorable, "n_matched": rep.n_matched,
                 "normalized_error_cm": 100 * rep.normalized_error,
@@ -207,19 +223,13 @@ def run_one(name: str, seq_path: str, variant: str) -> dict[str, Any]:
     return row
 
 
-def _task(args: tuple[str, str, str, str]) -> dict[str, Any]:
-    name, seq_path, variant, result_path = args
+def _task(args: tuple[str, str, str, str]) -> tuple[str, str]:
+    name, seq_path, variant, pred_path = args
     try:
-        row = run_one(name, seq_path, variant)
+        out = run_pipeline(name, seq_path, variant, pred_path)
     except Exception:  # noqa: BLE001 - a bug, not a pipeline error: report it, run the rest
-        row = {"sequence": name, "error": traceback.format_exc(limit=3).strip().splitlines()[-1]}
-        return row
-    rp = Path(result_path)
-    rp.parent.mkdir(parents=True, exist_ok=True)
-    tmp = rp.with_suffix(".tmp")
-    tmp.write_text(json.dumps(row, default=float))
-    tmp.replace(rp)
-    return row
+        return name, traceback.format_exc(limit=3).strip().splitlines()[-1]
+    return name, str(out["error"])
 
 
 def _synth_task(args: tuple[str, int, str, str]) -> tuple[str, str, float]:
@@ -265,6 +275,7 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, float]:
         "far_fraction": float(np.mean([r["far_fraction"] if np.isfinite(r["far_fraction"])
                                        else 0.0 for r in ok])),
         "seconds": float(np.sum([r["seconds"] for r in ok])),
+        "cpu_seconds": float(np.sum([r.get("cpu_seconds", np.nan) for r in ok])),
         "failed": sum(bool(r.get("error")) for r in ok),
     }
 
@@ -275,7 +286,8 @@ def _summary_line(label: str, s: dict[str, float]) -> str:
     return (f"{label:<30} n {s['n']:>2}  recall {s['recall']:.3f}  precision {s['precision']:.3f}"
             f"  out/scored {s['n_pred']:5.1f}/{s['n_scorable']:4.1f}  norm "
             f"{s['normalized_error_cm']:4.2f} cm  far {100 * s['far_fraction']:4.1f} %  "
-            f"{s['seconds']:5.0f} s" + (f"  failed {s['failed']}" if s["failed"] else ""))
+            f"{s['seconds']:5.0f} s ({s['cpu_seconds']:5.0f} s CPU)"
+            + (f"  failed {s['failed']}" if s["failed"] else ""))
 
 
 def main(argv: list[str]) -> int:
@@ -328,55 +340,56 @@ def main(argv: list[str]) -> int:
     if synth_secs:
         print(f"synthesized {sum(s > 0 for _, _, s in done)} sequences in {synth_secs:.0f} s "
               f"(cached in {a.cache})", flush=True)
-    # runs: cached scores or tasks
+    # runs: saved joints or tasks; every run is scored afresh
     rows: dict[tuple[int, str], dict[str, Any]] = {}
     tasks = []
+    pred_paths: dict[tuple[int, str], str] = {}
     for v, var in enumerate(a.variants):
         vkey = hashlib.sha1(json.dumps({"v": var.strip(), "code": code}).encode()).hexdigest()
         for n in names:
-            rp = a.cache / "results" / vkey[:16] / f"{Path(paths[n]).stem}.json"
-            if rp.exists() and not a.rerun:
-                rows[(v, n)] = json.loads(rp.read_text()) | _tags(n)
-            else:
+            rp = a.cache / "runs" / vkey[:16] / f"{Path(paths[n]).stem}.npz"
+            pred_paths[(v, n)] = str(rp)
+            if not rp.exists() or a.rerun:
                 tasks.append((v, (n, paths[n], var, str(rp))))
+    pending = {(v, t[0]) for v, t in tasks}
     print(f"{'sequence':<24} {'set':<6} {'cat':<10}" +
-          "".join(f"{'variant ' + str(v) + ' rec/prec out/sc cm far':>32}"
+          "".join(f"{'v' + str(v) + ': rec/prec out/sc  cm far  time':>34}"
                   for v in range(len(a.variants))), flush=True)
-
-    def show(n: str) -> None:
-        q = corpus.SEQUENCES[n]
-        print(f"{n:<24} {q.set:<6} {q.category[:10]:<10}" +
-              "".join(f"{_fmt(rows.get((v, n))):>32}" for v in range(len(a.variants))),
-              flush=True)
-
     shown: set[str] = set()
+    failures: list[str] = []
 
     def show_ready() -> None:
         for n in names:
             if n in shown:
                 continue
-            if all((v, n) in rows for v in range(len(a.variants))):
-                show(n)
-                shown.add(n)
-            else:
+            if any((v, n) in pending for v in range(len(a.variants))):
                 return
+            for v in range(len(a.variants)):
+                if Path(pred_paths[(v, n)]).exists():
+                    rows[(v, n)] = score(n, paths[n], pred_paths[(v, n)])
+            q = corpus.SEQUENCES[n]
+            print(f"{n:<24} {q.set:<6} {q.category[:10]:<10}" +
+                  "".join(f"{_fmt(rows.get((v, n))):>34}" for v in range(len(a.variants))),
+                  flush=True)
+            shown.add(n)
+
+    def finished(v: int, name: str, err: str) -> None:
+        pending.discard((v, name))
+        if err and not Path(pred_paths[(v, name)]).exists():
+            failures.append(f"variant {v} {name}: {err}")
+        show_ready()
 
     show_ready()
     if a.jobs > 1 and tasks:
         with ProcessPoolExecutor(a.jobs) as ex:
             futs = [(v, ex.submit(_task, t)) for v, t in tasks]
             for v, f in futs:
-                r = f.result()
-                rows[(v, r["sequence"])] = r | _tags(r["sequence"])
-                show_ready()
+                finished(v, *f.result())
     else:
         for v, t in tasks:
-            r = _task(t)
-            rows[(v, r["sequence"])] = r | _tags(r["sequence"])
-            show_ready()
-    for n in names:
-        if n not in shown:
-            show(n)
+            finished(v, *_task(t))
+    for msg in failures:
+        print(msg)
     errors = [(v, n, r["error"]) for (v, n), r in rows.items() if r.get("error")]
     for v, n, e in errors:
         print(f"variant {v} {n}: {e}")

@@ -238,6 +238,19 @@ def test_articulation_from_scaled_bone_matrices():
     assert sw[3] < 1e-12
 
 
+def test_articulation_in_metres_whatever_the_rest_units():
+    """A rig bound in centimetres (rest samples 100x, bone matrices carrying 0.01): the same
+    world motion, so the same swings, in metres."""
+    joints, parents, surf, labels, R, T, rest = _lbs_chain()
+    kw = {"surface": surf, "surface_labels": labels, "bone_translations": T,
+          "skinned": np.array([False, True, True, True])}
+    _, _, sw = scorable_joints(joints, parents, bone_rotations=R, rest_surface=rest, **kw)
+    _, _, sw_cm = scorable_joints(joints, parents, bone_rotations=R / 100.0,
+                                  rest_surface=rest * 100.0, **kw)
+    assert np.nanmax(sw) > 0.01
+    np.testing.assert_allclose(sw_cm, sw, rtol=1e-9, atol=1e-12)
+
+
 def test_articulation_through_an_unskinned_bone():
     """A skinned child rigid to an unskinned bone that turns against a skinned grandparent
     articulates (against the grandparent)."""

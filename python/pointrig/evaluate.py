@@ -297,8 +297,10 @@ def _swings_from_bones(parents: np.ndarray, rotations: np.ndarray, translations:
     ``rotations (F, J, 3, 3)``, ``translations (F, J, 3)``: ``T_frame_rest`` of each bone (the
     3x3 part may carry scale); ``rest_surface (S, 3)`` and ``labels (S,)``: the samples in the
     rest pose and their dominant joint. The reference is the nearest ancestor carrying
-    samples, else the chain's top bone. Returns ``(J,)`` metres, ``nan`` for roots and joints
-    without samples.
+    samples, else the chain's top bone. The child's samples are carried back through the
+    reference's motion to the reference's first-frame pose, so the swing is in world metres
+    even when the rest space has another unit (a centimetre armature under a 0.01 scale).
+    Returns ``(J,)`` metres, ``nan`` for roots and joints without samples.
     """
     out = np.full(len(parents), np.nan)
     for j, a, top in _swing_references(parents, labels):
@@ -306,8 +308,9 @@ def _swings_from_bones(parents: np.ndarray, rotations: np.ndarray, translations:
         q = rest_surface[labels == j]  # (m, 3)
         x = np.einsum("fij,mj->fmi", rotations[:, j], q) + translations[:, j, None]
         # the exact inverse, not the transpose: a rig's bone matrices may carry scale
-        back = np.einsum("fij,fmj->fmi", np.linalg.inv(rotations[:, ref]),
-                         x - translations[:, ref, None])
+        local = np.einsum("fij,fmj->fmi", np.linalg.inv(rotations[:, ref]),
+                          x - translations[:, ref, None])
+        back = np.einsum("ij,fmj->fmi", rotations[0, ref], local) + translations[0, ref]
         out[j] = _max_rms_drift(back, back[0])
     return out
 
