@@ -21,7 +21,7 @@ when no surface is given.
      and the parent bone applied to the child part's rest samples; with no skinned ancestor,
      the top bone of the chain (a rig's root moves in the world without skin). This is the
      articulation of the rig itself;
-   * ``"surface"`` (before session 21; the fallback without bone transforms): the parent part's
+   * ``"surface"`` (the older rule; the fallback without bone transforms): the parent part's
      surface samples give a rigid motion per frame (Kabsch), the world frame if no ancestor
      carries samples. On smoothly skinned rigs this measures skin blending, not articulation:
      it scores joints that never turn against their parent (girl's Neck, 0.0 deg; a glTF arm
