@@ -107,3 +107,84 @@ def expected_two_bone(verts: np.ndarray, upper: np.ndarray, u: float, angle_deg:
     out += shift
     joints = np.array([[0.0, 0.0, 0.0], [0.0, 1.0, 0.0]]) + shift
     return out, joints
+
+
+def write_split_two_bone_glb(path: Path, mode: str, angle_deg: float = 90.0) -> dict:
+    """The strip of :func:`write_two_bone_glb` (same animation) exported as two meshes: the
+    lower half (y <= 1) skinned to the root joint, the upper half (y >= 1.5) either skinned by
+    a second skin that lists only the tip joint (``mode="skins"``) or a mesh node without a
+    skin, child of the tip joint's node, with its vertices in the tip's frame
+    (``mode="rigid"``). Returns the vertices in bind space (lower first) and the upper mask."""
+    if mode not in ("skins", "rigid"):
+        raise ValueError(mode)
+    lower = np.array([[x, y, 0.0] for y in (0.0, 0.5, 1.0) for x in (-0.1, 0.1)],
+                     dtype=np.float32)
+    upper = np.array([[x, y, 0.0] for y in (1.5, 2.0) for x in (-0.1, 0.1)], dtype=np.float32)
+    tl = np.array([[0, 1, 2], [1, 3, 2], [2, 3, 4], [3, 5, 4]], dtype=np.uint16)
+    tu = np.array([[0, 1, 2], [1, 3, 2]], dtype=np.uint16)
+    j_lo = np.zeros((len(lower), 4), dtype=np.uint8)
+    j_up = np.zeros((len(upper), 4), dtype=np.uint8)
+    w_lo = np.zeros((len(lower), 4), dtype=np.float32)
+    w_lo[:, 0] = 1.0
+    w_up = w_lo[: len(upper)].copy()
+    ibm0 = np.stack([np.eye(4), np.eye(4)]).astype(np.float32)
+    ibm0[1, 1, 3] = -1.0
+    ibm1 = ibm0[1:].copy()
+    up_pos = upper if mode == "skins" else upper - np.array([0, 1, 0], dtype=np.float32)
+    times = np.array([0.0, 1.0], dtype=np.float32)
+    half = np.radians(angle_deg) / 2
+    rot = np.array([[0, 0, 0, 1], [0, 0, np.sin(half), np.cos(half)]], dtype=np.float32)
+    trans = np.array([[0, 0, 0], [0.5, 0, 0]], dtype=np.float32)
+    blobs = [lower, tl, j_lo, w_lo, np.transpose(ibm0, (0, 2, 1)).copy(), up_pos, tu, j_up, w_up,
+             np.transpose(ibm1, (0, 2, 1)).copy(), times, rot, trans]
+    views, offset, body = [], 0, b""
+    for blob in blobs:
+        raw = np.ascontiguousarray(blob).tobytes()
+        views.append({"buffer": 0, "byteOffset": offset, "byteLength": len(raw)})
+        padded = _pad4(raw)
+        body += padded
+        offset += len(padded)
+    kinds = [(5126, "VEC3"), (5123, "SCALAR"), (5121, "VEC4"), (5126, "VEC4"), (5126, "MAT4"),
+             (5126, "VEC3"), (5123, "SCALAR"), (5121, "VEC4"), (5126, "VEC4"), (5126, "MAT4"),
+             (5126, "SCALAR"), (5126, "VEC4"), (5126, "VEC3")]
+    counts = [len(lower), tl.size, len(lower), len(lower), 2, len(upper), tu.size, len(upper),
+              len(upper), 1, 2, 2, 2]
+    acc = [{"bufferView": i, "componentType": c, "count": n, "type": t}
+           for i, ((c, t), n) in enumerate(zip(kinds, counts))]
+    nodes = [{"name": "root", "children": [1]}, {"name": "tip", "translation": [0.0, 1.0, 0.0]},
+             {"name": "lower", "mesh": 0, "skin": 0}]
+    prim_up = {"attributes": {"POSITION": 5}, "indices": 6}
+    if mode == "skins":
+        prim_up["attributes"].update({"JOINTS_0": 7, "WEIGHTS_0": 8})
+        nodes.append({"name": "upper", "mesh": 1, "skin": 1})
+        roots = [0, 2, 3]
+    else:
+        nodes[1]["children"] = [3]
+        nodes.append({"name": "upper", "mesh": 1})
+        roots = [0, 2]
+    doc = {
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": roots}],
+        "nodes": nodes,
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "JOINTS_0": 2,
+                                                   "WEIGHTS_0": 3}, "indices": 1}]},
+                   {"primitives": [prim_up]}],
+        "skins": [{"joints": [0, 1], "inverseBindMatrices": 4},
+                  {"joints": [1], "inverseBindMatrices": 9}],
+        "animations": [{"name": "bend", "samplers": [
+            {"input": 10, "output": 11}, {"input": 10, "output": 12}],
+            "channels": [{"sampler": 0, "target": {"node": 1, "path": "rotation"}},
+                         {"sampler": 1, "target": {"node": 0, "path": "translation"}}]}],
+        "accessors": acc,
+        "bufferViews": views,
+        "buffers": [{"byteLength": len(body)}],
+    }
+    js = _pad4(json.dumps(doc).encode(), b" ")
+    total = 12 + 8 + len(js) + 8 + len(body)
+    out = struct.pack("<4sII", b"glTF", 2, total)
+    out += struct.pack("<II", len(js), 0x4E4F534A) + js
+    out += struct.pack("<II", len(body), 0x004E4942) + body
+    Path(path).write_bytes(out)
+    verts = np.concatenate([lower, upper]).astype(np.float64)
+    return {"verts": verts, "upper": verts[:, 1] > 1.0}

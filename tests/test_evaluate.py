@@ -13,6 +13,7 @@ from pointrig.errors import ConfigError, InputError
 from pointrig.evaluate import (
     evaluate,
     evaluate_files,
+    far_joints,
     load_prediction,
     match_pairs,
     pivot_errors,
@@ -237,6 +238,19 @@ def test_articulation_from_scaled_bone_matrices():
     assert sw[3] < 1e-12
 
 
+def test_articulation_in_metres_whatever_the_rest_units():
+    """A rig bound in centimetres (rest samples 100x, bone matrices carrying 0.01): the same
+    world motion, so the same swings, in metres."""
+    joints, parents, surf, labels, R, T, rest = _lbs_chain()
+    kw = {"surface": surf, "surface_labels": labels, "bone_translations": T,
+          "skinned": np.array([False, True, True, True])}
+    _, _, sw = scorable_joints(joints, parents, bone_rotations=R, rest_surface=rest, **kw)
+    _, _, sw_cm = scorable_joints(joints, parents, bone_rotations=R / 100.0,
+                                  rest_surface=rest * 100.0, **kw)
+    assert np.nanmax(sw) > 0.01
+    np.testing.assert_allclose(sw_cm, sw, rtol=1e-9, atol=1e-12)
+
+
 def test_articulation_through_an_unskinned_bone():
     """A skinned child rigid to an unskinned bone that turns against a skinned grandparent
     articulates (against the grandparent)."""
@@ -415,3 +429,42 @@ def test_match_pairs_against_brute_force() -> None:
         assert abs(sum(cost[a, b] for a, b in got) - best[1]) < 1e-9
         assert len({a for a, _ in got}) == len(got) == len({b for _, b in got})
     assert match_pairs(np.zeros((3, 0)), 1.0) == []
+
+
+def test_far_joints_hand_built_case():
+    # joints 0 and 1 carry skin (subject size 1 m: far at 10 cm), joint 2 does not; frame 1 is
+    # frame 0 moved by 0.5 m along z
+    g0 = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    shift = np.array([0.0, 0.0, 0.5])
+    g = np.stack([g0, g0 + shift])
+    pred = np.stack([
+        np.array([g0[0] + [0.05, 0, 0], [0.5, 0.5, 0.0], g0[2] + [0, 0.09, 0],
+                  g0[2] + [0.02, 0, 0]]),
+        np.array([g0[0] + [0.05, 0, 0], [0.5, 0.5, 0.0], g0[2] + [0, 0.12, 0],
+                  g0[2] + [0.02, 0, 0]]) + shift,
+    ])
+    rep = evaluate(pred, g, np.array([-1, 0, 0]), skinned=np.array([True, True, False]))
+    assert rep.subject_size == pytest.approx(1.0)
+    assert rep.far_distance == pytest.approx(0.1)
+    # p1 is 0.71 m from every joint; p2 is 9 then 12 cm from joint 2 (mean 10.5 cm, far
+    # although one frame is nearer); p3 sits by the unscored joint 2: near
+    assert rep.far.tolist() == [False, True, True, False]
+    assert rep.n_far == 2 and rep.far_fraction == pytest.approx(0.5)
+    assert rep.to_dict()["far_fraction"] == pytest.approx(0.5)
+    assert "far joints 2/4" in rep.format_table()
+    # the fraction of the size is a parameter
+    assert evaluate(pred, g, np.array([-1, 0, 0]), skinned=np.array([True, True, False]),
+                    far_fraction=0.2).far.tolist() == [False, True, False, False]
+
+
+def test_far_joints_against_brute_force():
+    rng = np.random.default_rng(3)
+    pred = rng.normal(size=(4, 7, 3))
+    gt = rng.normal(size=(4, 5, 3))
+    nearest = np.array([min(np.mean([np.linalg.norm(pred[t, p] - gt[t, j]) for t in range(4)])
+                            for j in range(5)) for p in range(7)])
+    cut = float(np.median(nearest))  # some far, some not
+    far = far_joints(pred, gt, cut)
+    assert far.tolist() == (nearest >= cut).tolist()
+    assert 0 < far.sum() < 7
+    assert far_joints(pred[:, :0], gt, 0.1).shape == (0,)

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation, Slerp
-from synth_helpers import expected_two_bone, write_two_bone_glb
+from synth_helpers import expected_two_bone, write_split_two_bone_glb, write_two_bone_glb
 
 from pointrig.errors import ConfigError, InputError
 from pointrig.io import read_sequence
@@ -15,6 +15,7 @@ from pointrig.synth import FIGURES, Camera, NoiseConfig, load_gt, make_figure, s
 from pointrig.synth.gltf import load_gltf, pose_gltf, quat_to_matrix, slerp
 from pointrig.synth.noise import apply_depth_noise, axial_sigma, outliers_in_box
 from pointrig.synth.render import depth_to_points, rasterize, rasterize_naive
+from pointrig.synth.scene import Posed, posed_size
 
 DATA = Path(__file__).parent / "data"
 
@@ -280,6 +281,79 @@ def test_gltf_two_bone_matches_analytic(tmp_path, interp):
         verts, joints = expected_two_bone(geo["verts"], geo["upper"], u, 90.0)
         np.testing.assert_allclose(posed.vertices[k], verts, atol=1e-6)
         np.testing.assert_allclose(posed.joints[k], joints, atol=1e-6)
+
+
+@pytest.mark.parametrize("mode", ["skins", "rigid"])
+def test_gltf_split_meshes_follow_their_joints(tmp_path, mode):
+    # the strip as two meshes: a second skin listing only the tip, or a rigid part under the
+    # tip's node; both halves must move as the one-mesh strip does
+    path = tmp_path / "split.glb"
+    geo = write_split_two_bone_glb(path, mode)
+    model = load_gltf(path)
+    assert model.joint_names == ["root", "tip"]
+    posed = pose_gltf(path, n_frames=4, fps=4.0)
+    assert posed.vertices.shape == (4, len(geo["verts"]), 3)
+    for k in range(4):
+        verts, joints = expected_two_bone(geo["verts"], geo["upper"], k / 4, 90.0)
+        np.testing.assert_allclose(posed.vertices[k], verts, atol=1e-6)
+        np.testing.assert_allclose(posed.joints[k], joints, atol=1e-6)
+    assert np.allclose(model.weights[geo["upper"], 1], 1.0)
+
+
+def test_posed_size_is_the_median_box_diagonal():
+    # a box 1 x 2 x 2 (diagonal 3) in two frames, 2 x 4 x 4 (diagonal 6) in one: median 3
+    box = np.array([[x, y, z] for x in (0, 1) for y in (0, 2) for z in (0, 2)], dtype=float)
+    verts = np.stack([box, box + 5.0, 2 * box])
+    posed = Posed("box", verts, np.zeros((0, 3), dtype=np.int64), np.ones((8, 1)),
+                  np.zeros((3, 1, 3)), ["j"], np.array([-1]), np.zeros((3, 1, 3, 3)),
+                  np.zeros((3, 1, 3)), box, np.zeros(0, dtype=np.int64), np.zeros((0, 3)))
+    assert posed_size(posed) == pytest.approx(3.0)
+    # the yaw is undone: a box turned by 30 degrees about y has the same size
+    c, s = np.cos(np.radians(30)), np.sin(np.radians(30))
+    Ry = np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+    posed.vertices = verts @ Ry.T
+    assert posed_size(posed, yaw=30.0) == pytest.approx(3.0)
+
+
+def _world(seq) -> np.ndarray:
+    cam = seq.camera
+    return (seq.gt_joints - np.asarray(cam.translation)) @ np.asarray(cam.rotation)
+
+
+def test_synthesize_size_scales_the_subject_and_distance_places_the_camera():
+    kw = {"n_frames": 3, "seed": 0, "noise": NoiseConfig.clean(), "camera": Camera.kinect(320)}
+    a = synthesize("arm", size=1.0, **kw)
+    b = synthesize("arm", size=2.5, **kw)
+    np.testing.assert_allclose(_world(b), 2.5 * _world(a), atol=1e-9)
+    assert b.params["scale"] == pytest.approx(2.5 * a.params["scale"])
+    # the walk stays in metres whatever the scale
+    w = synthesize("arm", size=2.5, walk=1.0, **kw)
+    np.testing.assert_allclose(_world(w)[:, :, 0] - _world(b)[:, :, 0],
+                               np.broadcast_to(np.array([-0.5, 0.0, 0.5])[:, None],
+                                               b.gt_joints.shape[:2]),
+                               atol=1e-9)
+    # the camera distance: the eye sits `distance` metres from the subject box's centre, and
+    # the subject is seen about that far
+    far = synthesize("arm", size=1.0, distance=3.5, **kw)
+    eye = -np.asarray(far.camera.rotation).T @ np.asarray(far.camera.translation)
+    world = _world(far)
+    lo, hi = world.reshape(-1, 3).min(0), world.reshape(-1, 3).max(0)
+    assert abs(np.linalg.norm(eye - (lo + hi) / 2) - 3.5) < 0.3
+    assert abs(np.median(far.frames[0][:, 2]) - 3.5) < 0.3
+    with pytest.raises(ConfigError):
+        synthesize("arm", size=0.0, **kw)
+    with pytest.raises(ConfigError):
+        synthesize("arm", distance=-1.0, **kw)
+
+
+def test_camera_placed_at_a_distance():
+    lo, hi = np.array([-0.5, 0.0, -0.2]), np.array([0.5, 1.8, 0.2])
+    cam = Camera.kinect().placed_for(lo, hi, np.array([1.0, 0.0, 1.0]), distance=4.0)
+    eye = -np.asarray(cam.rotation).T @ np.asarray(cam.translation)
+    np.testing.assert_allclose(eye, (lo + hi) / 2 + 4.0 * np.array([1.0, 0.0, 1.0]) / np.sqrt(2),
+                               atol=1e-12)
+    with pytest.raises(ConfigError):
+        Camera.kinect().placed_for(lo, hi, distance=0.0)
 
 
 def test_gltf_real_model_and_errors(tmp_path):

@@ -21,7 +21,7 @@ when no surface is given.
      and the parent bone applied to the child part's rest samples; with no skinned ancestor,
      the top bone of the chain (a rig's root moves in the world without skin). This is the
      articulation of the rig itself;
-   * ``"surface"`` (before session 21; the fallback without bone transforms): the parent part's
+   * ``"surface"`` (the older rule; the fallback without bone transforms): the parent part's
      surface samples give a rigid motion per frame (Kabsch), the world frame if no ancestor
      carries samples. On smoothly skinned rigs this measures skin blending, not articulation:
      it scores joints that never turn against their parent (girl's Neck, 0.0 deg; a glTF arm
@@ -42,6 +42,12 @@ minimises their total distance.
 raw error = mean over matched pairs of the mean over frames of ``|p_t - g_t|``; normalised
 error (Helten et al. 2013, as in §7.3.3) = the same after subtracting each pair's mean offset
 ``mean_t (p_t - g_t)`` from the prediction. Errors are in metres.
+
+**Far joints** (a diagnostic; it changes no score): a predicted joint is *far* when its mean
+distance over the frames to EVERY ground-truth joint, scored or not (IK targets, sockets and
+static joints included), is at least ``far_fraction * s`` (default 10 %). Such a joint stands
+where the source rig has no joint at all; ``EvalReport.far_fraction`` is their share of the
+predicted joints.
 
 **Pivot error** (a diagnostic; it changes no score): with the rig's bone transforms, each
 joint's distance from where its part turns against its reference part (:func:`pivot_errors`).
@@ -65,9 +71,9 @@ import numpy as np
 from .errors import ConfigError, InputError
 
 __all__ = ["EvalReport", "JointRow", "evaluate", "evaluate_files", "match_pairs", "pair_errors",
-           "normalized_offsets", "pivot_errors", "scorable_joints",
+           "normalized_offsets", "pivot_errors", "scorable_joints", "far_joints",
            "subject_size", "load_prediction", "SWING_FRACTION", "DUPLICATE_FRACTION",
-           "THRESHOLD_FRACTION", "SWING_SOURCES"]
+           "THRESHOLD_FRACTION", "SWING_SOURCES", "FAR_FRACTION"]
 
 #: Matching threshold as a fraction of the subject size.
 THRESHOLD_FRACTION = 0.08
@@ -75,6 +81,9 @@ THRESHOLD_FRACTION = 0.08
 SWING_FRACTION = 0.015
 #: Joints closer than this fraction of the subject size (mean over frames) are duplicates.
 DUPLICATE_FRACTION = 0.02
+#: A predicted joint at least this fraction of the subject size (mean over frames) from every
+#: ground-truth joint is far (module docstring).
+FAR_FRACTION = 0.10
 #: Minimum surface samples for a part to define a rigid motion.
 MIN_PART_SAMPLES = 3
 
@@ -115,6 +124,21 @@ class EvalReport:
     pred_names: list[str] = field(default_factory=list)
     #: how the articulation test got its motions: "bones", "surface" or "" (no surface)
     swing_source: str = ""
+    #: ``(P,)`` bool: predicted joints far from every ground-truth joint (:func:`far_joints`)
+    far: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    #: the distance that makes a predicted joint far, metres
+    far_distance: float = float("nan")
+
+    @property
+    def n_far(self) -> int:
+        """Number of predicted joints far from every ground-truth joint."""
+        return int(np.sum(self.far))
+
+    @property
+    def far_fraction(self) -> float:
+        """Share of the predicted joints far from every ground-truth joint (nan without
+        predictions)."""
+        return self.n_far / self.n_pred if self.n_pred else float("nan")
 
     @property
     def off_pivot(self) -> np.ndarray:
@@ -140,7 +164,7 @@ class EvalReport:
         d = {k: clean(getattr(self, k)) for k in (
             "recall", "precision", "raw_error", "normalized_error", "threshold", "subject_size",
             "n_pred", "n_gt", "n_scorable", "n_matched", "n_frames", "swing_source",
-            "n_off_pivot")}
+            "n_off_pivot", "n_far", "far_fraction", "far_distance")}
         d["joints"] = [{k: clean(v) for k, v in dataclasses.asdict(r).items()} for r in self.rows]
         for j in d["joints"]:
             m = j["matched"]
@@ -158,6 +182,8 @@ class EvalReport:
             f"recall     {self.recall:.3f}  ({self.n_matched}/{self.n_scorable})"
             + (f"   off-pivot joints {self.n_off_pivot}" if self.n_off_pivot else ""),
             f"precision  {self.precision:.3f}  ({self.n_matched}/{self.n_pred})",
+            (f"far joints {self.n_far}/{self.n_pred}  (>= {self.far_distance:.3f} m from "
+             "every ground-truth joint)"),
             f"raw error         {self.raw_error * cm:7.2f} cm",
             f"normalised error  {self.normalized_error * cm:7.2f} cm",
             "",
@@ -271,8 +297,10 @@ def _swings_from_bones(parents: np.ndarray, rotations: np.ndarray, translations:
     ``rotations (F, J, 3, 3)``, ``translations (F, J, 3)``: ``T_frame_rest`` of each bone (the
     3x3 part may carry scale); ``rest_surface (S, 3)`` and ``labels (S,)``: the samples in the
     rest pose and their dominant joint. The reference is the nearest ancestor carrying
-    samples, else the chain's top bone. Returns ``(J,)`` metres, ``nan`` for roots and joints
-    without samples.
+    samples, else the chain's top bone. The child's samples are carried back through the
+    reference's motion to the reference's first-frame pose, so the swing is in world metres
+    even when the rest space has another unit (a centimetre armature under a 0.01 scale).
+    Returns ``(J,)`` metres, ``nan`` for roots and joints without samples.
     """
     out = np.full(len(parents), np.nan)
     for j, a, top in _swing_references(parents, labels):
@@ -280,8 +308,9 @@ def _swings_from_bones(parents: np.ndarray, rotations: np.ndarray, translations:
         q = rest_surface[labels == j]  # (m, 3)
         x = np.einsum("fij,mj->fmi", rotations[:, j], q) + translations[:, j, None]
         # the exact inverse, not the transpose: a rig's bone matrices may carry scale
-        back = np.einsum("fij,fmj->fmi", np.linalg.inv(rotations[:, ref]),
-                         x - translations[:, ref, None])
+        local = np.einsum("fij,fmj->fmi", np.linalg.inv(rotations[:, ref]),
+                          x - translations[:, ref, None])
+        back = np.einsum("ij,fmj->fmi", rotations[0, ref], local) + translations[0, ref]
         out[j] = _max_rms_drift(back, back[0])
     return out
 
@@ -483,6 +512,34 @@ def scorable_joints(gt_joints: np.ndarray, gt_parents: np.ndarray, *,
     return mask, reasons, swing
 
 
+def far_joints(pred_joints: np.ndarray, gt_joints: np.ndarray, distance: float) -> np.ndarray:
+    """Which predicted joints are far from every ground-truth joint.
+
+    Parameters
+    ----------
+    pred_joints
+        ``(F, P, 3)`` predicted joint positions, metres.
+    gt_joints
+        ``(F, J, 3)`` ground-truth joints, all of them (scored or not), metres.
+    distance
+        Metres: a predicted joint whose mean distance over the frames to every ground-truth
+        joint is at least this is far.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(P,)`` bool.
+    """
+    p = np.asarray(pred_joints, dtype=np.float64)
+    g = np.asarray(gt_joints, dtype=np.float64)
+    if p.shape[1] == 0:
+        return np.zeros(0, dtype=bool)
+    if g.shape[1] == 0:
+        return np.ones(p.shape[1], dtype=bool)
+    mean = np.linalg.norm(p[:, :, None, :] - g[:, None, :, :], axis=3).mean(axis=0)  # (P, J)
+    return mean.min(axis=1) >= distance
+
+
 def match_pairs(cost: np.ndarray, threshold: float) -> list[tuple[int, int]]:
     """The evaluation's matching: the one-to-one assignment of predictions to true joints with
     the least total cost among pairs cheaper than ``threshold``.
@@ -541,7 +598,8 @@ def evaluate(pred_joints: np.ndarray, gt_joints: np.ndarray, gt_parents: np.ndar
              bone_rotations: np.ndarray | None = None,
              bone_translations: np.ndarray | None = None,
              rest_surface: np.ndarray | None = None,
-             swing_source: str = "auto") -> EvalReport:
+             swing_source: str = "auto",
+             far_fraction: float = FAR_FRACTION) -> EvalReport:
     """Score predicted joint trajectories against ground truth.
 
     Parameters
@@ -562,6 +620,9 @@ def evaluate(pred_joints: np.ndarray, gt_joints: np.ndarray, gt_parents: np.ndar
     bone_rotations, bone_translations, rest_surface, swing_source
         Optional ground-truth bone transforms and rest samples for the articulation test,
         and which motions it uses (:func:`scorable_joints`).
+    far_fraction
+        A predicted joint this fraction of the subject size or more from every ground-truth
+        joint is far (:func:`far_joints`; it changes no score).
     pred_source, gt_source
         File names used in error messages.
 
@@ -622,6 +683,7 @@ def evaluate(pred_joints: np.ndarray, gt_joints: np.ndarray, gt_parents: np.ndar
         threshold=tau, subject_size=s, n_pred=P, n_gt=J, n_scorable=n_sc, n_matched=n_match,
         n_frames=F, scorable=mask, rows=rows, pred_names=pred_names,
         swing_source=source if have_surface else "",
+        far=far_joints(p, g, far_fraction * s), far_distance=far_fraction * s,
     )
 
 

@@ -125,10 +125,21 @@ class Camera:
         return np.stack([(u - self.cx) * z / self.fx, (v - self.cy) * z / self.fy, z], axis=1)
 
     def placed_for(self, lo: np.ndarray, hi: np.ndarray,
-                   direction: np.ndarray | None = None) -> Camera:
+                   direction: np.ndarray | None = None,
+                   distance: float | None = None) -> Camera:
         """A copy placed to see the world box ``[lo, hi]`` whole, from ``direction`` (world,
         from the subject towards the camera; default ``+z``), at least
-        :data:`KINECT_MIN_RANGE` from the box's front face."""
+        :data:`KINECT_MIN_RANGE` from the box's front face; or, with ``distance``, exactly
+        ``distance`` metres from the box's centre (what does not fit in the image is cut).
+
+        Raises
+        ------
+        ConfigError
+            ``distance`` not a positive number.
+        """
+        if distance is not None and not (np.isfinite(distance) and distance > 0):
+            raise ConfigError(f"camera distance must be a positive number of metres, got "
+                              f"{distance!r}")
         lo = np.asarray(lo, dtype=np.float64)
         hi = np.asarray(hi, dtype=np.float64)
         d = np.array([0.0, 0.0, 1.0]) if direction is None else np.asarray(direction, float)
@@ -144,6 +155,8 @@ class Camera:
         tan_y = (self.height / 2) / self.fy * FRAME_FILL
         dist = max(ext[0] / tan_x, ext[1] / tan_y) + ext[2]
         dist = max(dist, KINECT_MIN_RANGE + ext[2])
+        if distance is not None:
+            dist = float(distance)
         eye = centre + d * dist
         rot, trans = look_at(eye, centre)
         return self.with_pose(rot, trans)

@@ -11,6 +11,12 @@ Skinning is linear blend skinning (Eq. 13): a vertex ``v`` of a skinned mesh goe
 and ``IBM_j`` its inverse bind matrix (the mesh node's own transform is ignored, as the glTF
 specification requires). Ground-truth joints are the skin joints' global positions
 ``G_j(t)[:3, 3]``; joint parents follow the node hierarchy restricted to the skin's joints.
+
+One armature is often exported as several skinned meshes with a skin each, and machines carry
+rigid parts as plain mesh nodes under a joint node. The joints are the union of the skins that
+mesh nodes use (the most used skin's first), each vertex taken to that union's bind space; a
+mesh node without a skin under a joint node is rigidly bound to its nearest joint ancestor
+(its rest-pose placement relative to that joint kept).
 """
 
 from __future__ import annotations
@@ -306,6 +312,32 @@ def load_gltf(path: str | Path) -> GltfModel:
         raise FormatError(f"malformed glTF: {exc!r}", p) from None
 
 
+def _rest_globals(parent: np.ndarray, trs: list) -> np.ndarray:
+    """Global node matrices ``(N, 4, 4)`` of the nodes' own (unanimated) transforms."""
+    N = len(trs)
+    local = np.zeros((N, 4, 4))
+    for n, t in enumerate(trs):
+        if isinstance(t, np.ndarray):
+            local[n] = t
+        else:
+            local[n, :3, :3] = quat_to_matrix(t[1]) * t[2][None, :]
+            local[n, :3, 3] = t[0]
+            local[n, 3, 3] = 1.0
+    G = np.zeros_like(local)
+    done = np.zeros(N, dtype=bool)
+    for n0 in range(N):
+        chain = []
+        n = n0
+        while n >= 0 and not done[n]:
+            chain.append(n)
+            n = int(parent[n])
+        for n in reversed(chain):
+            p = int(parent[n])
+            G[n] = G[p] @ local[n] if p >= 0 else local[n]
+            done[n] = True
+    return G
+
+
 def _build_model(p: Path, doc: dict, buffers: list[bytes]) -> GltfModel:
     nodes = doc.get("nodes", [])
     N = len(nodes)
@@ -319,44 +351,89 @@ def _build_model(p: Path, doc: dict, buffers: list[bytes]) -> GltfModel:
     skinned_nodes = [i for i in mesh_nodes if "skin" in nodes[i]]
     if not skins or not skinned_nodes:
         raise InputError("glTF has no skinned mesh (need a rigged model)", p)
-    # the skin used by most mesh nodes defines the ground-truth joints
-    skin_id = max({nodes[i]["skin"] for i in skinned_nodes},
-                  key=lambda s: sum(nodes[i]["skin"] == s for i in skinned_nodes))
-    skin = skins[skin_id]
-    joints = np.asarray(skin["joints"], dtype=np.int64)
+    # the ground-truth joints: the skin used by most mesh nodes, then the joints of the other
+    # skins that mesh nodes use (one armature exported as several skinned meshes)
+    used = sorted({nodes[i]["skin"] for i in skinned_nodes},
+                  key=lambda s: (-sum(nodes[i]["skin"] == s for i in skinned_nodes), s))
+    skin_ibm: dict[int, np.ndarray] = {}
+    order: list[int] = []
+    ibm_of: dict[int, np.ndarray] = {}
+    for sid in used:
+        sk = skins[sid]
+        sj = [int(n) for n in sk["joints"]]
+        if "inverseBindMatrices" in sk:
+            m = _accessor(doc, buffers, sk["inverseBindMatrices"], p).reshape(len(sj), 4, 4)
+            m = np.transpose(m, (0, 2, 1))  # column-major storage
+        else:
+            m = np.broadcast_to(np.eye(4), (len(sj), 4, 4)).copy()
+        skin_ibm[sid] = m
+        for k, n in enumerate(sj):
+            if n not in ibm_of:
+                ibm_of[n] = m[k]
+                order.append(n)
+    joints = np.asarray(order, dtype=np.int64)
     J = len(joints)
-    if "inverseBindMatrices" in skin:
-        ibm = _accessor(doc, buffers, skin["inverseBindMatrices"], p).reshape(J, 4, 4)
-        ibm = np.transpose(ibm, (0, 2, 1))  # column-major storage
-    else:
-        ibm = np.broadcast_to(np.eye(4), (J, 4, 4)).copy()
+    ibm = np.stack([ibm_of[n] for n in order])
+    col = {n: k for k, n in enumerate(order)}
+    rest_globals = None
     verts, tris, wts = [], [], []
     nv = 0
-    for ni in skinned_nodes:
-        if nodes[ni]["skin"] != skin_id:
-            continue
+    for ni in mesh_nodes:
+        sid = nodes[ni].get("skin")
+        if sid is None:
+            # a rigid part: a mesh node under a joint node moves with its nearest joint
+            a = int(parent[ni])
+            while a >= 0 and a not in col:
+                a = int(parent[a])
+            if a < 0:
+                continue
+            if rest_globals is None:
+                rest_globals = _rest_globals(parent, [_node_trs(n) for n in nodes])
+            # bind-space position of a vertex v of the node: IBM_a^-1 G_a^-1 G_node v
+            to_bind = np.linalg.inv(ibm[col[a]]) @ np.linalg.solve(rest_globals[a],
+                                                                    rest_globals[ni])
+            jmap = None
+        else:
+            sj = [int(n) for n in skins[sid]["joints"]]
+            jmap = np.array([col[n] for n in sj], dtype=np.int64)
+            # a vertex bound by this skin's IBM_s goes to the union's bind space through
+            # IBM_u^-1 IBM_s of its dominant joint (the identity when the skins agree)
+            fix = np.stack([np.linalg.solve(ibm[col[n]], skin_ibm[sid][k])
+                            for k, n in enumerate(sj)])
         mesh = doc["meshes"][nodes[ni]["mesh"]]
         for prim in mesh["primitives"]:
             mode = prim.get("mode", 4)
             if mode not in (4, 5, 6):
                 continue
             attr = prim["attributes"]
-            if "POSITION" not in attr or "JOINTS_0" not in attr or "WEIGHTS_0" not in attr:
+            if "POSITION" not in attr:
                 continue
             pos = _accessor(doc, buffers, attr["POSITION"], p)
             V = len(pos)
             W = np.zeros((V, J))
-            k = 0
-            while f"JOINTS_{k}" in attr and f"WEIGHTS_{k}" in attr:
-                jj = _accessor(doc, buffers, attr[f"JOINTS_{k}"], p).astype(np.int64)
-                ww = _accessor(doc, buffers, attr[f"WEIGHTS_{k}"], p)
-                if (jj >= J).any() or (jj < 0).any():
-                    raise FormatError(f"JOINTS_{k} refers to a joint outside the skin", p)
-                np.add.at(W, (np.repeat(np.arange(V), jj.shape[1]), jj.reshape(-1)),
-                          ww.reshape(-1))
-                k += 1
-            s = W.sum(axis=1, keepdims=True)
-            W = np.where(s > 0, W / np.where(s > 0, s, 1), 0.0)
+            if jmap is None:
+                W[:, col[a]] = 1.0
+                pos = pos @ to_bind[:3, :3].T + to_bind[:3, 3]
+            else:
+                if "JOINTS_0" not in attr or "WEIGHTS_0" not in attr:
+                    continue
+                k = 0
+                while f"JOINTS_{k}" in attr and f"WEIGHTS_{k}" in attr:
+                    jj = _accessor(doc, buffers, attr[f"JOINTS_{k}"], p).astype(np.int64)
+                    ww = _accessor(doc, buffers, attr[f"WEIGHTS_{k}"], p)
+                    if (jj >= len(jmap)).any() or (jj < 0).any():
+                        raise FormatError(f"JOINTS_{k} refers to a joint outside the skin", p)
+                    np.add.at(W, (np.repeat(np.arange(V), jj.shape[1]), jmap[jj].reshape(-1)),
+                              ww.reshape(-1))
+                    k += 1
+                s = W.sum(axis=1, keepdims=True)
+                W = np.where(s > 0, W / np.where(s > 0, s, 1), 0.0)
+                inv_col = np.full(J, -1, dtype=np.int64)
+                inv_col[jmap] = np.arange(len(jmap))
+                dom = inv_col[np.argmax(W, axis=1)]
+                if not np.allclose(fix, np.eye(4), atol=1e-9):
+                    f = fix[np.maximum(dom, 0)]
+                    pos = np.einsum("vij,vj->vi", f[:, :3, :3], pos) + f[:, :3, 3]
             if "indices" in prim:
                 idx = _accessor(doc, buffers, prim["indices"], p).astype(np.int64).reshape(-1)
             else:

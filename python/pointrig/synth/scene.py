@@ -294,14 +294,16 @@ def _scene_quads(lo: np.ndarray, hi: np.ndarray, facing: np.ndarray, noise: Nois
 
 
 def render_posed(posed: Posed, camera: Camera | None, noise: NoiseConfig, fps: float,
-                 source: str, params: dict[str, Any]) -> SynthSequence:
-    """Place the camera, render, corrupt and package a posed mesh."""
+                 source: str, params: dict[str, Any],
+                 distance: float | None = None) -> SynthSequence:
+    """Place the camera (``distance`` metres from the centre of the motion's box, or
+    auto-placed), render, corrupt and package a posed mesh."""
     cam = camera if camera is not None else Camera.kinect()
     F = posed.vertices.shape[0]
     lo = posed.vertices.reshape(-1, 3).min(axis=0)
     hi = posed.vertices.reshape(-1, 3).max(axis=0)
     if not cam.placed:
-        cam = cam.placed_for(lo, hi, posed.facing)
+        cam = cam.placed_for(lo, hi, posed.facing, distance)
     Rc = np.asarray(cam.rotation, dtype=np.float64)
     tc = np.asarray(cam.translation, dtype=np.float64)
     eye = -Rc.T @ tc
@@ -376,13 +378,17 @@ def synthesize(
     clip: str | int | None = None,
     start: float = 0.0,
     surface_points: int = DEFAULT_SURFACE_POINTS,
+    size: float | None = None,
+    distance: float | None = None,
 ) -> SynthSequence:
     """Make a synthetic depth-camera sequence with ground truth.
 
     Parameters
     ----------
     source
-        A figure name from :data:`FIGURES` or a path to a rigged, animated ``.glb``/``.gltf``.
+        A figure name from :data:`FIGURES`, a path to a rigged, animated ``.glb``/``.gltf``,
+        or a motion-capture ``.bvh`` clip (dressed in a capsule body,
+        :mod:`pointrig.synth.bvh`).
     n_frames
         Number of frames ``F``.
     seed
@@ -410,10 +416,19 @@ def synthesize(
     clip
         glTF animation name or index (default: the clip with the most joint motion).
     start
-        glTF: time offset into the clip, seconds.
+        glTF and BVH: time offset into the clip, seconds.
     surface_points
         Number of exact surface samples ``S`` (fewer for procedural figures after dropping
         buried samples).
+    size
+        Scale the subject so that its size, the median over the frames of the bounding-box
+        diagonal of its mesh (in its own frame, before ``yaw``), is ``size`` metres (models
+        come in any unit: glTF packs range from centimetres to tens of units for a human);
+        ``None`` keeps the source's units. ``walk`` stays in metres.
+    distance
+        Camera distance from the centre of the motion's bounding box, metres (``None``:
+        auto-placed to frame the whole motion, at least 0.6 m away). Ignored when ``camera``
+        carries an extrinsic.
 
     Returns
     -------
@@ -425,20 +440,63 @@ def synthesize(
         raise ConfigError(f"n_frames must be >= 1, got {n_frames}")
     if fps <= 0 or speed < 0:
         raise ConfigError("fps must be > 0 and speed >= 0")
+    if size is not None and not (np.isfinite(size) and size > 0):
+        raise ConfigError(f"size must be a positive number of metres, got {size!r}")
+    if distance is not None and not (np.isfinite(distance) and distance > 0):
+        raise ConfigError(f"distance must be a positive number of metres, got {distance!r}")
+    pose_walk = 0.0 if size is not None else walk
     params = {"n_frames": int(n_frames), "seed": int(seed), "fps": float(fps),
               "speed": float(speed), "amplitude": float(amplitude), "walk": float(walk),
               "yaw": float(yaw)}
     src = str(source)
     if src in FIGURES:
-        posed = pose_figure(src, n_frames, fps, speed, amplitude, walk, yaw, seed,
+        posed = pose_figure(src, n_frames, fps, speed, amplitude, pose_walk, yaw, seed,
                             surface_points)
     elif src.lower().endswith((".glb", ".gltf")):
         from .gltf import pose_gltf
 
         params.update({"clip": clip, "start": float(start)})
-        posed = pose_gltf(src, n_frames, fps=fps, speed=speed, walk=walk, yaw=yaw, clip=clip,
-                          start=start, seed=seed, surface_points=surface_points)
+        posed = pose_gltf(src, n_frames, fps=fps, speed=speed, walk=pose_walk, yaw=yaw,
+                          clip=clip, start=start, seed=seed, surface_points=surface_points)
+    elif src.lower().endswith(".bvh"):
+        from .bvh import pose_bvh
+
+        params.update({"start": float(start)})
+        posed = pose_bvh(src, n_frames, fps=fps, speed=speed, walk=pose_walk, yaw=yaw,
+                         start=start, seed=seed, surface_points=surface_points)
     else:
-        raise ConfigError(f"unknown source {src!r}: expected one of {', '.join(FIGURES)} or a "
-                         ".glb/.gltf file")
-    return render_posed(posed, camera, noise, fps, src, params)
+        raise ConfigError(f"unknown source {src!r}: expected one of {', '.join(FIGURES)}, a "
+                          ".glb/.gltf file or a .bvh clip")
+    if size is not None:
+        scale = size / posed_size(posed, yaw)
+        _scale_posed(posed, scale)
+        _, tp = _placement(n_frames, walk, yaw)
+        posed.vertices += tp[:, None]
+        posed.joints += tp[:, None]
+        posed.T += tp[:, None]
+        params.update({"size": float(size), "scale": float(scale)})
+    if distance is not None:
+        params["distance"] = float(distance)
+    return render_posed(posed, camera, noise, fps, src, params, distance)
+
+
+def posed_size(posed: Posed, yaw: float = 0.0) -> float:
+    """The size of a posed mesh: the median over the frames of the bounding-box diagonal of
+    its vertices ``(F, V, 3)``, taken in the subject's own frame (``yaw`` degrees about ``y``
+    undone), in the mesh's units."""
+    Rp = rodrigues(np.array([0.0, 1.0, 0.0]), np.radians(yaw))
+    v = posed.vertices @ Rp  # rows: Rp^T x
+    diag = np.linalg.norm(v.max(axis=1) - v.min(axis=1), axis=1)
+    size = float(np.median(diag))
+    if not size > 0:
+        raise ConfigError(f"{posed.name}: the posed mesh has no extent, it cannot be scaled")
+    return size
+
+
+def _scale_posed(posed: Posed, scale: float) -> None:
+    """Scale a posed mesh about the world origin in place: vertices, joints, rest vertices and
+    the bone translations (``T_frame_rest`` keeps its rotation: ``s x = R (s q) + s T``)."""
+    posed.vertices *= scale
+    posed.joints *= scale
+    posed.T *= scale
+    posed.rest_vertices = posed.rest_vertices * scale
