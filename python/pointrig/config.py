@@ -410,6 +410,11 @@ class StructureConfig:
     # output: one bone per piece of a bone with children whose pieces lie this x the rest
     # spacing apart (pointrig.structure.split_disconnected_bones; 0 = off)
     split_disconnected: float = 3.0
+    # output, first: a joint stays only where the raw frames need it, by the Bayesian
+    # information criterion on the observed points (pointrig.selection.select_joints): the
+    # multiplier of its penalty (1 = BIC, 0 = keep every joint) and the frames it scores
+    joint_penalty: float = 1.0
+    joint_frames: int = 30
 
     # --- single-view depth correction ---
     # c~ moved back along the camera ray to the part's axis depth, q in (1/2, 1]
@@ -466,6 +471,8 @@ class StructureConfig:
         c.int("leaf_split_min_points", 0)
         c.real("leaf_split_max_ratio", "[0, inf)")
         c.real("split_disconnected", "[0, 100)")
+        c.real("joint_penalty", "[0, inf)")
+        c.int("joint_frames", 1)
         c.real("view_depth_quantile", "(0.5, 1]", off=True)
         c.point("camera_position")
         c.choice("single_view", ("yes", "no", "auto"))
@@ -492,6 +499,7 @@ class StructureConfig:
             "leaf_root": "keep",
             "leaf_split_angle_deg": 0.0,
             "split_disconnected": 0.0,
+            "joint_penalty": 0.0,
             "single_view": "no",
         }
         return cls(**{**base, **overrides})

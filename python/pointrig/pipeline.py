@@ -120,7 +120,9 @@ def output_skeleton(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np
     """The skeleton as :func:`extract` outputs it, from step 2's or step 3's bones.
 
     The one place of the output stage, so that a benchmark that reruns step 3 on cached
-    inputs scores what the pipeline writes: the output tree (a leaf root moves to the body's
+    inputs scores what the pipeline writes: after step 3 (``observed`` given) first the joints
+    the raw frames support (:func:`pointrig.selection.select_joints`, ``[structure]
+    joint_penalty``), then the output tree (a leaf root moves to the body's
     centre, :func:`pointrig.structure.output_tree`), then, after step 3 (``observed`` given),
     one bone per separate piece of a bone that carries two subtrees
     (:func:`pointrig.structure.split_disconnected_bones`, ``[structure] split_disconnected``)
@@ -158,7 +160,22 @@ def output_skeleton(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np
         If given, the depth pass's seconds are stored under ``"joint_depth"``.
     """
     from . import structure as struct_mod
+    from .selection import select_joints
 
+    if observed is not None and config.structure.joint_penalty > 0:
+        t0 = time.perf_counter()
+        sel = select_joints(observed[0], rest_points, labels, bone_parent, R, T,
+                            penalty_scale=config.structure.joint_penalty,
+                            max_frames=config.structure.joint_frames)
+        if sel.removed:
+            log.info("removed %d of %d joints the raw frames do not support",
+                     len(sel.removed), len(bone_parent))
+        labels, bone_parent, R, T = sel.labels, sel.bone_parent, sel.R, sel.T
+        joints_rest = np.asarray(joints_rest)[sel.keep]
+        if weights is not None:
+            weights = sel.merge_weights(weights)
+        if timings is not None:
+            timings["joint_selection"] = time.perf_counter() - t0
     parent, joints_rest = struct_mod.output_tree(rest_points, labels, bone_parent, joints_rest,
                                                  config.structure, view_camera)
     if observed is not None:
