@@ -19,14 +19,8 @@ import time
 from pathlib import Path
 
 import numpy as np
-from pointrig.preprocess import (
-    _band_distance,
-    _connected_pieces,
-    connected_pieces_exact,
-    find_background_planes,
-    median_spacing,
-    remove_background,
-)
+from pointrig.background import _band_distance, find_background_planes, remove_background
+from pointrig.geometry import _connected_pieces, connected_pieces_exact, median_spacing
 from pointrig.synth import NoiseConfig, synthesize
 
 

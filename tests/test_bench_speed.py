@@ -14,7 +14,7 @@ import bench_speed  # noqa: E402
 
 import pointrig.joints as joints_mod  # noqa: E402
 import pointrig.registration as reg_mod  # noqa: E402
-from pointrig.preprocess import (  # noqa: E402
+from pointrig.geometry import (  # noqa: E402
     chamfer_misfit,
     farthest_point_sampling,
     nearest_distances,

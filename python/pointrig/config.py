@@ -137,7 +137,7 @@ class PreprocessConfig:
     # largest robust span of a frame, metres: more means the input is not in metres, an error
     # (pointrig.sequence.check_units); 0 = off
     max_extent: float = 30.0
-    # "auto": remove static floor / wall planes (pointrig.preprocess.remove_background);
+    # "auto": remove static floor / wall planes (pointrig.background.remove_background);
     # "keep": the points as read (§3 crops by hand)
     background: str = "auto"
     background_threshold: float = 0.03  # inlier distance of the plane search, metres

@@ -34,13 +34,13 @@ import numpy as np
 
 from .config import PipelineConfig, StructureConfig
 from .errors import InputError
+from .geometry import knn_graph
 from .kinematics import (
     joint_trajectories,
     minimal_twist,
     solve_joint_positions,
     tree_order,
 )
-from .preprocess import knn_graph
 from .skeleton import Skeleton
 from .structure import fit_bones
 from .view import view_depth_correct, view_depth_joints
