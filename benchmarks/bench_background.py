@@ -20,14 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.sets import MODELS
-from pointrig.preprocess import (
-    _band_distance,
-    _connected_pieces,
-    connected_pieces_exact,
-    find_background_planes,
-    median_spacing,
-    remove_background,
-)
+from pointrig.background import _band_distance, find_background_planes, remove_background
+from pointrig.geometry import _connected_pieces, connected_pieces_exact, median_spacing
 from pointrig.synth import NoiseConfig, synthesize
 
 _GREENMAN = MODELS / "greenman.glb"

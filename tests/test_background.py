@@ -7,11 +7,8 @@ import pytest
 
 from pointrig.cli import main
 from pointrig.io import write_sequence
-from pointrig.preprocess import (
-    connected_pieces_exact,
-    find_background_planes,
-    remove_background,
-)
+from pointrig.background import find_background_planes, remove_background
+from pointrig.geometry import connected_pieces_exact
 from pointrig.sequence import PointSequence
 from pointrig.synth import Camera, NoiseConfig, synthesize
 
@@ -119,7 +116,7 @@ def test_connected_pieces_match_the_exact_point_graph():
     frame (5 mm spacing), a gap of 0.85 radius that connects, gaps of 1.15 and 3 radii that do
     not, and isolated speckle, rotated off the grid axes. (Cells of a whole radius, four times
     the default, join the 1.15-radius gap or split the 0.85-radius one.)"""
-    from pointrig.preprocess import _connected_pieces
+    from pointrig.geometry import _connected_pieces
 
     rng = np.random.default_rng(4)
     r = 0.05
@@ -146,7 +143,7 @@ def test_connected_pieces_degenerate_radius_and_huge_extent():
     """Radius 0 (a frame of duplicated points has a median spacing of 0): only coincident
     points are one piece. A radius tiny against the extent (more cells than an int64 key can
     number) still gives the exact graph's pieces."""
-    from pointrig.preprocess import _connected_pieces
+    from pointrig.geometry import _connected_pieces
 
     pts = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [0.001, 0.0, 1.0], [5.0, 5.0, 5.0]])
     lab = _connected_pieces(pts, 0.0)

@@ -11,7 +11,7 @@ from benchmarks import bench_speed
 import pointrig.joints as joints_mod
 import pointrig.registration as reg_mod
 from pointrig.config import PipelineConfig
-from pointrig.preprocess import (
+from pointrig.geometry import (
     chamfer_misfit,
     farthest_point_sampling,
     nearest_distances,

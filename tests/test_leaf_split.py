@@ -1,4 +1,4 @@
-"""The output stage's leaf split at a bend (``structure.split_bent_leaves``).
+"""The output stage's leaf split at a bend (``output.split_bent_leaves``).
 
 A constructed leg: a thigh (the root bone) and one leaf bone holding the shin and an L-shaped
 foot. The registered points are the exact motion of the three true parts plus noise, so the
@@ -13,8 +13,7 @@ import numpy as np
 import pytest
 
 from pointrig.config import PipelineConfig, StructureConfig
-from pointrig.pipeline import _split_weights, output_skeleton
-from pointrig.structure import leaf_bend, split_bent_leaves
+from pointrig.output import _split_weights, leaf_bend, output_skeleton, split_bent_leaves
 
 KNEE = np.array([0.0, 0.0, 0.0])
 ANKLE = np.array([0.0, 0.0, -0.40])

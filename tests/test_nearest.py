@@ -8,7 +8,7 @@ from scipy.spatial import cKDTree
 
 from pointrig import _core
 from pointrig.errors import InputError
-from pointrig.preprocess import chamfer_misfit, nearest_distances
+from pointrig.geometry import chamfer_misfit, nearest_distances
 
 
 def _scan_cloud(rng: np.random.Generator, n: int, outliers: float = 0.02) -> np.ndarray:
@@ -91,7 +91,7 @@ def _fps_numpy(points: np.ndarray, n: int, seed: int) -> np.ndarray:
 def test_farthest_point_sampling_equals_the_numpy_loop() -> None:
     """The same indices as the numpy loop, on a depth-like cloud and on a grid full of
     ties; ``n >= m`` returns every index."""
-    from pointrig.preprocess import farthest_point_sampling
+    from pointrig.geometry import farthest_point_sampling
 
     rng = np.random.default_rng(4)
     cloud = _scan_cloud(rng, 5000)
@@ -121,7 +121,7 @@ def test_kth_distances_equal_the_kd_tree(k: int) -> None:
 def test_remove_sparse_points_keeps_what_the_kd_tree_rule_keeps() -> None:
     """:func:`remove_sparse_points` keeps exactly the points whose ``k``-th neighbour
     distance (itself not counted; by scipy) is within ``ratio`` times its median."""
-    from pointrig.preprocess import remove_sparse_points
+    from pointrig.geometry import remove_sparse_points
 
     rng = np.random.default_rng(6)
     pts = _scan_cloud(rng, 4000, outliers=0.05)

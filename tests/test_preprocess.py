@@ -13,13 +13,8 @@ from scipy.spatial import cKDTree
 from pointrig.config import PipelineConfig, PreprocessConfig, RegistrationConfig
 from pointrig.errors import ConfigError, EmptyFrameError
 from pointrig.pipeline import extract
-from pointrig.preprocess import (
-    knn_graph,
-    remove_sparse_frames,
-    remove_sparse_points,
-    remove_statistical_outliers,
-    rest_surface,
-)
+from pointrig.geometry import knn_graph, remove_sparse_points, remove_statistical_outliers
+from pointrig.preprocess import remove_sparse_frames, rest_surface
 from pointrig.registration import register_sequence
 from pointrig.sequence import PointSequence
 from pointrig.synth import Camera, NoiseConfig, synthesize

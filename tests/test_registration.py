@@ -25,7 +25,7 @@ from scipy.spatial.transform import Rotation
 from pointrig import _core
 from pointrig.config import RegistrationConfig
 from pointrig.errors import ConfigError, InputError
-from pointrig.preprocess import surface_cover
+from pointrig.geometry import surface_cover
 from pointrig.registration import (
     RegistrationResult,
     build_graph,
@@ -406,7 +406,7 @@ def test_hard_motion_is_tracked_on_every_frame(kind: str) -> None:
 def test_chamfer_misfit_matches_a_brute_force_oracle() -> None:
     """Symmetric truncated chamfer against all pairwise distances in numpy; zero on identical
     sets; bounded by twice the cap."""
-    from pointrig.preprocess import chamfer_misfit
+    from pointrig.geometry import chamfer_misfit
 
     rng = np.random.default_rng(3)
     a = rng.normal(size=(60, 3))
@@ -506,7 +506,7 @@ def test_geodesic_node_edges_cut_touching_parts_and_keep_fragments() -> None:
 def test_estimate_normals_match_a_sphere_and_face_the_camera() -> None:
     """Plane normals of the camera-facing half of a sphere against the closed form (the
     radial direction) and a numpy k-NN PCA, flipped towards the camera; no neighbours, zero."""
-    from pointrig.preprocess import estimate_normals
+    from pointrig.geometry import estimate_normals
 
     rng = np.random.default_rng(4)
     d = rng.normal(size=(6000, 3))

@@ -1,5 +1,5 @@
 """The output skeleton's root at the body's centre when the largest part is a leaf
-(pointrig.structure.tree_centre / reroot / output_tree), against brute-force oracles."""
+(pointrig.output.tree_centre / reroot / output_tree), against brute-force oracles."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from pointrig.config import StructureConfig
 from pointrig.kinematics import joint_trajectories
-from pointrig.structure import leaf_root, output_tree, reroot, tree_centre
+from pointrig.output import leaf_root, output_tree, reroot, tree_centre
 
 
 def _segment(a: np.ndarray, b: np.ndarray, n: int) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""pointrig.structure.split_disconnected_bones: one bone per separate piece of a bone that
+"""pointrig.output.split_disconnected_bones: one bone per separate piece of a bone that
 carries two subtrees, each piece's joint by Eq. 20 on its own motion, against a constructed
 figure whose thighs turn about known hip centres."""
 
@@ -11,7 +11,7 @@ import pytest
 
 from pointrig.config import StructureConfig
 from pointrig.errors import ConfigError
-from pointrig.structure import split_disconnected_bones
+from pointrig.output import split_disconnected_bones
 
 HIP_L = np.array([0.09, 0.05, 2.0])
 HIP_R = np.array([-0.09, 0.05, 2.0])

@@ -144,8 +144,8 @@ def _rest_frame_arg(text: str) -> int | str:
 
 
 def _read_configured(args: argparse.Namespace, cfg):
+    from .background import remove_background
     from .io import read_sequence
-    from .preprocess import remove_background
 
     pre = cfg.preprocess  # its choices were checked when the config was made
     seq = read_sequence(

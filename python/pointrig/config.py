@@ -137,7 +137,7 @@ class PreprocessConfig:
     # largest robust span of a frame, metres: more means the input is not in metres, an error
     # (pointrig.sequence.check_units); 0 = off
     max_extent: float = 30.0
-    # "auto": remove static floor / wall planes (pointrig.preprocess.remove_background);
+    # "auto": remove static floor / wall planes (pointrig.background.remove_background);
     # "keep": the points as read (§3 crops by hand)
     background: str = "auto"
     background_threshold: float = 0.03  # inlier distance of the plane search, metres
@@ -396,19 +396,19 @@ class StructureConfig:
     # root bone: "largest" (most points) | "centroid" (centre nearest the rest centroid, §5.3)
     root_choice: str = "largest"
     # output: a root that is a leaf of a branched tree moves to the body's centre ("centre")
-    # or stays ("keep"; pointrig.structure.output_tree)
+    # or stays ("keep"; pointrig.output.output_tree)
     leaf_root: str = "centre"
     # that centre: the rest points within this x size of the least eccentricity (0 = one point)
     centre_tolerance: float = 0.04
     # output: a joint where a leaf bone bends at least this many degrees and its pieces move
-    # apart (pointrig.structure.split_bent_leaves; 0 = off); the other leaf_split_* its limits
+    # apart (pointrig.output.split_bent_leaves; 0 = off); the other leaf_split_* its limits
     leaf_split_angle_deg: float = 30.0
     leaf_split_min_fraction: float = 0.1  # shorter segment, fraction of the polyline
     leaf_split_min_length: float = 0.03  # distal segment, x size
     leaf_split_min_points: int = 12  # rest points of the leaf
     leaf_split_max_ratio: float = 0.5  # two pieces' fit residual over one fit's
     # output: one bone per piece of a bone with children whose pieces lie this x the rest
-    # spacing apart (pointrig.structure.split_disconnected_bones; 0 = off)
+    # spacing apart (pointrig.output.split_disconnected_bones; 0 = off)
     split_disconnected: float = 3.0
     # output, first: a joint stays only where the raw frames need it, by the Bayesian
     # information criterion on the observed points (pointrig.selection.select_joints): the

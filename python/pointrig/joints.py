@@ -47,13 +47,13 @@ import numpy as np
 from . import _core
 from .config import JointsConfig, pool_size
 from .errors import InputError
-from .kinematics import joint_trajectories, solve_joint_positions
-from .preprocess import (
+from .geometry import (
     chamfer_misfit,
     estimate_normals,
     mean_spacing,
     nearest_distances,
 )
+from .kinematics import joint_trajectories, solve_joint_positions
 
 __all__ = [
     "JointsResult",

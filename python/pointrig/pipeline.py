@@ -11,13 +11,17 @@ writes the outputs atomically:
 - ``skeleton.glb``   glTF 2.0: joints, skin, the rest points as a skinned point mesh and the
   animation (Blender, Godot, Unity, three.js), see :func:`pointrig.export.write_gltf`;
 - ``skeleton.png``, ``skeleton.gif``  pictures (optional).
+
+The output stage that turns step 3's bones into the written skeleton (joint selection,
+output tree, splits, joint depth, bone rolls) is :mod:`pointrig.output`;
+:func:`output_skeleton` and :func:`build_skeleton` are re-exported here.
 """
 
 from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -26,11 +30,10 @@ import numpy as np
 
 from .config import PipelineConfig
 from .export import write_bvh, write_gltf
-from .kinematics import joint_trajectories, minimal_twist, tree_order
+from .output import build_skeleton, output_skeleton
 from .preprocess import remove_sparse_frames
 from .sequence import PointSequence, check_units
 from .skeleton import Skeleton
-from .view import view_depth_joints
 
 __all__ = ["ExtractResult", "build_skeleton", "extract", "output_skeleton"]
 
@@ -61,147 +64,6 @@ class ExtractResult:
     #: the ``F`` observed clouds ``(N_t, 3)`` after that clean-up, as steps 1-3 and the
     #: joint-depth pass read them (metres)
     frames: list[np.ndarray] | None = None
-
-
-def build_skeleton(rest_points: np.ndarray, bone_parent: np.ndarray, joints_rest: np.ndarray,
-                   R: np.ndarray, T: np.ndarray, weights: np.ndarray | None,
-                   labels: np.ndarray | None) -> Skeleton:
-    """Assemble a :class:`Skeleton` with joints in parent-before-child order.
-
-    Joint ``b`` is the head of bone ``b`` (see :mod:`pointrig.kinematics`); skeleton bones
-    are the segments parent joint -> child joint.
-    """
-    order = tree_order(bone_parent)
-    inv = np.empty_like(order)
-    inv[order] = np.arange(len(order))
-    parents = np.array([inv[bone_parent[b]] if bone_parent[b] >= 0 else -1 for b in order])
-    jr = joints_rest[order]
-    Ro, To = R[:, order], T[:, order]
-    jp = joint_trajectories(jr, Ro, To, parents)
-    non_root = [j for j in range(len(order)) if parents[j] >= 0]
-    return Skeleton(
-        joint_names=[f"j{j}" for j in range(len(order))],
-        parents=parents,
-        rest_positions=jr,
-        joint_positions=jp,
-        bone_heads=np.array([parents[j] for j in non_root], dtype=np.int64),
-        bone_tails=np.array(non_root, dtype=np.int64),
-        bone_rotations=Ro,
-        bone_translations=To,
-        weights=None if weights is None else weights[:, order],
-        rest_points=rest_points,
-        labels=None if labels is None else inv[labels],
-        bone_names=[f"b{j}" for j in non_root],
-    )
-
-
-def _split_weights(weights: np.ndarray, labels: np.ndarray, source: np.ndarray) -> np.ndarray:
-    """``(M, B')`` skinning weights after :func:`pointrig.structure.split_bent_leaves` or
-    :func:`pointrig.structure.split_disconnected_bones`: each new bone ``b >= B`` takes its
-    source bone's weight of the points now labelled ``b`` (the two move alike, so the skinned
-    points do not change)."""
-    W = np.asarray(weights, dtype=float)
-    B = W.shape[1]
-    out = np.zeros((W.shape[0], len(source)))
-    out[:, :B] = W
-    for b in range(B, len(source)):
-        moved = labels == b
-        out[moved, b] = W[moved, source[b]]
-        out[moved, source[b]] = 0.0
-    return out
-
-
-def output_skeleton(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np.ndarray,
-                    joints_rest: np.ndarray, R: np.ndarray, T: np.ndarray,
-                    weights: np.ndarray | None, config: PipelineConfig,
-                    view_camera: np.ndarray | None,
-                    observed: tuple[Sequence[np.ndarray], np.ndarray] | None = None,
-                    timings: dict[str, float] | None = None) -> Skeleton:
-    """The skeleton as :func:`extract` outputs it, from step 2's or step 3's bones.
-
-    The one place of the output stage, so that a benchmark that reruns step 3 on cached
-    inputs scores what the pipeline writes: after step 3 (``observed`` given) first the joints
-    the raw frames support (:func:`pointrig.selection.select_joints`, ``[structure]
-    joint_penalty``), then the output tree (a leaf root moves to the body's
-    centre, :func:`pointrig.structure.output_tree`), then, after step 3 (``observed`` given),
-    one bone per separate piece of a bone that carries two subtrees
-    (:func:`pointrig.structure.split_disconnected_bones`, ``[structure] split_disconnected``)
-    and a joint where a leaf bone bends (:func:`pointrig.structure.split_bent_leaves`,
-    ``[structure] leaf_split_*``; the new bones take their source bone's motion), the joints
-    to their parts' axis depth along the camera ray (``[joints] joint_depth``,
-    :func:`pointrig.view.view_depth_joints`) and the bones' rolls
-    (``[joints] bone_twist``, :func:`pointrig.kinematics.minimal_twist`), then
-    :func:`build_skeleton`.
-
-    Parameters
-    ----------
-    rest_points
-        ``(M, 3)`` rest points, metres.
-    labels
-        ``(M,)`` bone of each rest point.
-    bone_parent
-        ``(B,)`` parent bone, ``-1`` for the root.
-    joints_rest
-        ``(B, 3)`` rest-pose head joint of each bone, metres.
-    R, T
-        ``(F, B, 3, 3)`` and ``(F, B, 3)``: ``T_frame_rest`` of every bone per frame, metres.
-    weights
-        ``(M, B)`` skinning weights, or ``None``.
-    config
-        The pipeline's parameters (``structure`` and ``joints`` are read).
-    view_camera
-        ``(3,)`` camera position (metres) when the input is one view, else ``None`` (no depth
-        pass).
-    observed
-        After step 3: ``(frames, registered)``, the ``F`` observed clouds ``(N_t, 3)`` and the
-        final registration's ``(F, M, 3)`` points (metres) that the depth pass reads; ``None``
-        for a step-2 skeleton (output tree only).
-    timings
-        If given, the depth pass's seconds are stored under ``"joint_depth"``.
-    """
-    from . import structure as struct_mod
-    from .selection import select_joints
-
-    if observed is not None and config.structure.joint_penalty > 0:
-        t0 = time.perf_counter()
-        sel = select_joints(observed[0], rest_points, labels, bone_parent, R, T,
-                            penalty_scale=config.structure.joint_penalty,
-                            max_frames=config.structure.joint_frames)
-        if sel.removed:
-            log.info("removed %d of %d joints the raw frames do not support",
-                     len(sel.removed), len(bone_parent))
-        labels, bone_parent, R, T = sel.labels, sel.bone_parent, sel.R, sel.T
-        joints_rest = np.asarray(joints_rest)[sel.keep]
-        if weights is not None:
-            weights = sel.merge_weights(weights)
-        if timings is not None:
-            timings["joint_selection"] = time.perf_counter() - t0
-    parent, joints_rest = struct_mod.output_tree(rest_points, labels, bone_parent, joints_rest,
-                                                 config.structure, view_camera)
-    if observed is not None:
-        # new bones take their source bone's motion and weights: first the separate pieces
-        # of a bone, then the bends of the leaves
-        for split in (struct_mod.split_disconnected_bones, struct_mod.split_bent_leaves):
-            labels, parent, joints_rest, source = split(rest_points, labels, parent,
-                                                        joints_rest, observed[1],
-                                                        config.structure)
-            if len(source) > R.shape[1]:
-                R, T = R[:, source], T[:, source]
-                if weights is not None:
-                    weights = _split_weights(weights, labels, source)
-    if observed is not None and config.joints.joint_depth == "chord" \
-            and view_camera is not None:
-        t0 = time.perf_counter()
-        joints_rest, _ = view_depth_joints(
-            observed[0], observed[1], labels, parent, joints_rest, R, T, view_camera,
-            n_frames=config.joints.depth_frames)
-        if timings is not None:
-            timings["joint_depth"] = time.perf_counter() - t0
-    if observed is not None and config.joints.bone_twist == "minimal":
-        R, T = minimal_twist(R, T, joints_rest, parent, rest_points, labels,
-                             config.joints.twist_min_elongation,
-                             config.joints.twist_min_roll_deg)
-    return build_skeleton(rest_points, parent, joints_rest, R, T, weights, labels)
 
 
 def extract(

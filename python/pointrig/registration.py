@@ -34,17 +34,17 @@ from scipy.spatial.transform import Rotation
 from . import _core
 from .config import RegistrationConfig, pool_size
 from .errors import ConfigError, FormatError, InputError
-from .io import write_npz
-from .preprocess import (
+from .geometry import (
     chamfer_misfit,
     estimate_normals,
     farthest_point_sampling,
     knn_graph,
     mean_spacing,
     nearest_distances,
-    rest_surface,
     surface_cover,
 )
+from .io import write_npz
+from .preprocess import rest_surface
 from .sequence import PointSequence
 
 __all__ = [
@@ -241,7 +241,7 @@ def resolve_rest_frame(config: RegistrationConfig, n_frames: int,
     candidate (:func:`rest_candidates`): of the frames of the middle half of the sequence
     (``F // 4`` to ``F - F // 4 - 1``) whose points cover within
     ``config.rest_cover_tolerance`` of the most surface any of them covers
-    (:func:`pointrig.preprocess.surface_cover`), the one nearest the middle (the shortest
+    (:func:`pointrig.geometry.surface_cover`), the one nearest the middle (the shortest
     chains of frame-to-frame registrations).
 
     Parameters
@@ -421,7 +421,7 @@ def register_sequence(
 
 def sequence_misfit(points: np.ndarray, frames: Sequence[np.ndarray], trunc: float) -> float:
     """Mean over frames of the symmetric truncated chamfer misfit
-    (:func:`pointrig.preprocess.chamfer_misfit`) between the registered points ``(F, M, 3)``
+    (:func:`pointrig.geometry.chamfer_misfit`) between the registered points ``(F, M, 3)``
     and the frames (``F`` arrays ``(N_t, 3)``), metres; empty frames are skipped."""
     vals = [chamfer_misfit(y, x, trunc) for y, x in zip(points, frames) if len(x)]
     return float(np.mean(vals)) if vals else 0.0

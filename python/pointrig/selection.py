@@ -30,16 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .preprocess import nearest_distances
-
-
-def kabsch(P: np.ndarray, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(R (3, 3), t (3,))`` minimising ``sum |R p + t - q|^2`` over rows of ``P, Q (n, 3)``."""
-    cp, cq = P.mean(axis=0), Q.mean(axis=0)
-    U, _, Vt = np.linalg.svd((P - cp).T @ (Q - cq))
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-    Rm = Vt.T @ D @ U.T
-    return Rm, cq - Rm @ cp
+from .geometry import kabsch, nearest_distances
 
 __all__ = ["JointSelection", "select_joints"]
 
