@@ -20,4 +20,6 @@ bench: setup
 	.venv/bin/python benchmarks/run_all.py
 
 lint:
+	bash scripts/setup.sh --python-only
 	cargo fmt --check && cargo clippy --all-targets -- -D warnings
+	.venv/bin/ruff check python tests benchmarks scripts
