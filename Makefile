@@ -10,8 +10,9 @@ demo: setup
 
 test: setup test-rust test-python
 
+# the release profile of the extension's build, so its compiled dependencies are reused
 test-rust:
-	cargo test --no-default-features --profile fastdev -q
+	cargo test --no-default-features --release -- --quiet
 
 test-python:
 	.venv/bin/python -m pytest -q
