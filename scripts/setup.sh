@@ -59,15 +59,15 @@ command -v cargo >/dev/null 2>&1 \
   || { echo "setup: cargo (Rust toolchain) not found; install it with rustup" >&2; exit 1; }
 
 # The extension, in place in python/pointrig/. The first run also installs pointrig editable
-# (its .pth and the `pointrig` command); later runs only rebuild the extension. maturin's own
-# pip step is skipped: the packages are in already.
+# (its .pth and the `pointrig` command), with maturin's pip step quiet (the packages are in
+# already); later runs only rebuild the extension.
 export VIRTUAL_ENV="$PWD/.venv" PATH="$PWD/.venv/bin:$PATH"
 if [ -f .venv/.pointrig-installed ]; then
   echo "setup: building the Rust extension (release profile; up to date: seconds)"
   maturin develop --release --skip-install
 else
   echo "setup: building the Rust extension (release profile; from scratch several minutes)"
-  maturin develop --release
+  PIP_QUIET=1 maturin develop --release
   touch .venv/.pointrig-installed
 fi
 
