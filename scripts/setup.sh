@@ -62,11 +62,10 @@ command -v cargo >/dev/null 2>&1 \
 # (its .pth and the `pointrig` command), with maturin's pip step quiet (the packages are in
 # already); later runs only rebuild the extension.
 export VIRTUAL_ENV="$PWD/.venv" PATH="$PWD/.venv/bin:$PATH"
+echo "setup: building the Rust extension (release profile; the first build takes minutes)"
 if [ -f .venv/.pointrig-installed ]; then
-  echo "setup: building the Rust extension (release profile; up to date: seconds)"
   maturin develop --release --skip-install
 else
-  echo "setup: building the Rust extension (release profile; from scratch several minutes)"
   PIP_QUIET=1 maturin develop --release
   touch .venv/.pointrig-installed
 fi
