@@ -10,8 +10,9 @@ demo: setup
 
 test: setup test-rust test-python
 
+# the release profile of the extension's build, so its compiled dependencies are reused
 test-rust:
-	cargo test --no-default-features --profile fastdev -q
+	cargo test --no-default-features --release -- --quiet
 
 test-python:
 	.venv/bin/python -m pytest -q
@@ -20,4 +21,6 @@ bench: setup
 	.venv/bin/python benchmarks/run_all.py
 
 lint:
+	bash scripts/setup.sh --python-only
 	cargo fmt --check && cargo clippy --all-targets -- -D warnings
+	.venv/bin/ruff check python tests benchmarks scripts

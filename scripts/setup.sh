@@ -1,10 +1,23 @@
 #!/usr/bin/env bash
-# Set up a local development environment from scratch, idempotently:
-#   .venv (Python 3.11), the Python dependencies, and a release build of the Rust extension.
-# Needs: python3.11 (or python3 >= 3.11) and a Rust toolchain (cargo). Installs open3d's one
-# system library (libusb) with apt-get when it is missing and we are root.
+# Set up the development environment, idempotently (a second run only rebuilds what changed):
+#   .venv (Python 3.11) with the Python dependencies (pyproject.toml's runtime and dev lists at
+#   the versions of constraints.txt), then the Rust extension, built with the release profile
+#   (the one `make test-rust` tests with, so the dependencies compile once) and pointrig
+#   installed editable, with its `pointrig` command in .venv/bin.
+#
+#   bash scripts/setup.sh                 # everything
+#   bash scripts/setup.sh --python-only   # the venv and its packages, no Rust build
+#
+# Needs python3.11 (or python3 >= 3.11; PYTHON=... to choose) and a Rust toolchain (cargo).
 set -euo pipefail
 cd "$(dirname "$0")/.."
+
+python_only=0
+case "${1:-}" in
+  "") ;;
+  --python-only) python_only=1 ;;
+  *) echo "usage: bash scripts/setup.sh [--python-only]" >&2; exit 2 ;;
+esac
 
 PY=${PYTHON:-}
 if [ -z "$PY" ]; then
@@ -12,36 +25,53 @@ if [ -z "$PY" ]; then
     if command -v "$cand" >/dev/null 2>&1; then PY=$cand; break; fi
   done
 fi
-[ -n "$PY" ] || { echo "setup: python3.11 not found" >&2; exit 1; }
-command -v cargo >/dev/null 2>&1 || { [ -f "$HOME/.cargo/env" ] && . "$HOME/.cargo/env"; }
-command -v cargo >/dev/null 2>&1 || { echo "setup: cargo (Rust toolchain) not found; install rustup" >&2; exit 1; }
-
-# open3d's wheel links libusb-1.0 at import time.
-if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
-  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
-    echo "setup: installing libusb-1.0-0 (needed by open3d)"
-    (apt-get update -qq && apt-get install -y -qq libusb-1.0-0 libgomp1) >/dev/null
-  else
-    echo "setup: warning: libusb-1.0 missing; open3d may fail to import" >&2
-  fi
-fi
+[ -n "$PY" ] || { echo "setup: python3.11 not found (set PYTHON=...)" >&2; exit 1; }
+"$PY" -c 'import sys; sys.exit(sys.version_info < (3, 11))' \
+  || { echo "setup: $PY is older than Python 3.11" >&2; exit 1; }
 
 if [ ! -x .venv/bin/python ]; then
+  echo "setup: creating .venv with $("$PY" --version)"
   "$PY" -m venv .venv
 fi
+
+# The packages: installed again only when the lists or the pinned versions change.
 stamp=.venv/.pointrig-deps
-# constraints.txt pins every package to the versions the tests and benchmarks were run with
-want=$(cat pyproject.toml constraints.txt | sha256sum | cut -c1-16)
-if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
-  .venv/bin/python -m pip install -q --upgrade pip
-  .venv/bin/python -m pip install -q -c constraints.txt "maturin>=1.9.4,<2"
-  # dependencies from pyproject (runtime + dev); the package itself is built below
-  .venv/bin/python - <<'PYEOF' > .venv/.reqs
+reqs=$(.venv/bin/python - <<'PYEOF'
 import tomllib
-d = tomllib.load(open("pyproject.toml", "rb"))["project"]
-print("\n".join(d["dependencies"] + d["optional-dependencies"]["dev"]))
+project = tomllib.load(open("pyproject.toml", "rb"))["project"]
+build = tomllib.load(open("pyproject.toml", "rb"))["build-system"]["requires"]
+print("\n".join(build + project["dependencies"] + project["optional-dependencies"]["dev"]))
 PYEOF
-  .venv/bin/python -m pip install -q -c constraints.txt -r .venv/.reqs
+)
+want=$(printf '%s\n' "$reqs" | cat - constraints.txt | sha256sum | cut -c1-16)
+if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
+  echo "setup: installing the Python packages (pyproject.toml, pinned by constraints.txt)"
+  printf '%s\n' "$reqs" > .venv/.pointrig-requirements.txt
+  .venv/bin/python -m pip install -q --disable-pip-version-check -c constraints.txt \
+    -r .venv/.pointrig-requirements.txt
+  rm -f .venv/.pointrig-installed  # the package's own install follows the new list
   echo "$want" > "$stamp"
 fi
-VIRTUAL_ENV="$PWD/.venv" PATH="$PWD/.venv/bin:$PATH" .venv/bin/maturin develop --release -q
+[ "$python_only" = 1 ] && exit 0
+
+command -v cargo >/dev/null 2>&1 || { [ -f "$HOME/.cargo/env" ] && . "$HOME/.cargo/env"; }
+command -v cargo >/dev/null 2>&1 \
+  || { echo "setup: cargo (Rust toolchain) not found; install it with rustup" >&2; exit 1; }
+
+# The extension, in place in python/pointrig/. The first run also installs pointrig editable
+# (its .pth and the `pointrig` command), with maturin's pip step quiet (the packages are in
+# already); later runs only rebuild the extension.
+export VIRTUAL_ENV="$PWD/.venv" PATH="$PWD/.venv/bin:$PATH"
+echo "setup: building the Rust extension (release profile; the first build takes minutes)"
+if [ -f .venv/.pointrig-installed ]; then
+  maturin develop --release --skip-install
+else
+  PIP_QUIET=1 maturin develop --release
+  touch .venv/.pointrig-installed
+fi
+
+if ! out=$(.venv/bin/pointrig --version 2>&1); then
+  echo "setup: .venv/bin/pointrig does not start: $out" >&2
+  exit 1
+fi
+echo "setup: ready ($out). Run it as .venv/bin/pointrig, or after 'source .venv/bin/activate' as pointrig"

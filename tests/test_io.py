@@ -4,6 +4,7 @@ raises a typed error naming the file/frame."""
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -12,55 +13,148 @@ from scipy.spatial import cKDTree
 
 from pointrig.errors import EmptyFrameError, FormatError, InputError
 from pointrig.io import read_frame, read_sequence, write_frame, write_sequence
-from pointrig.io.readers import depth_to_points, natural_key, voxel_downsample
+from pointrig.io.readers import depth_to_points, lzf_decompress, natural_key, voxel_downsample
+
+DATA = Path(__file__).parent / "data"
 
 
 def _frames(rng, n_frames=3, n=200):
     return [rng.normal(size=(n + 7 * t, 3)) for t in range(n_frames)]
 
 
-def _o3d_write(path: Path, pts: np.ndarray, ascii: bool) -> None:
-    import open3d as o3d
+def _plyfile_write(path: Path, pts: np.ndarray, text: bool, byte_order: str = "<") -> None:
+    """Write ``pts`` with plyfile: float64 x, y, z plus a uchar colour, and a face element
+    (a list property) after the vertices, as meshes exported by other tools have."""
+    from plyfile import PlyData, PlyElement
 
-    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
-    assert o3d.io.write_point_cloud(str(path), pcd, write_ascii=ascii)
+    vert = np.empty(len(pts), dtype=[("x", "f8"), ("y", "f8"), ("z", "f8"), ("red", "u1")])
+    vert["x"], vert["y"], vert["z"] = pts.T
+    vert["red"] = np.arange(len(pts)) % 256
+    face = np.empty(1, dtype=[("vertex_indices", "i4", (3,))])
+    face["vertex_indices"] = [[0, 1, 2]]
+    PlyData([PlyElement.describe(vert, "vertex"), PlyElement.describe(face, "face")],
+            text=text, byte_order=byte_order).write(str(path))
 
 
-@pytest.mark.parametrize("suffix,ascii", [(".ply", False), (".ply", True), (".pcd", False),
-                                          (".pcd", True)])
-def test_open3d_written_frames_round_trip(tmp_path, rng, suffix, ascii):
+@pytest.mark.parametrize("text,byte_order", [(False, "<"), (False, ">"), (True, "=")])
+def test_plyfile_written_frames_round_trip(tmp_path, rng, text, byte_order):
     frames = _frames(rng)
     for t, pts in enumerate(frames):
-        _o3d_write(tmp_path / f"frame_{t}{suffix}", pts, ascii)
+        _plyfile_write(tmp_path / f"frame_{t}.ply", pts, text, byte_order)
     seq = read_sequence(tmp_path)
-    assert seq.fmt == suffix[1:]
+    assert seq.fmt == "ply"
     assert len(seq) == len(frames)
     for got, want in zip(seq.frames, frames):
-        # open3d ascii writes ~1e-6 relative precision; binary is exact float64
-        np.testing.assert_allclose(got, want, atol=1e-5 if ascii else 0)
+        np.testing.assert_array_equal(got, want)  # plyfile's ascii keeps all 17 digits
 
 
-def test_open3d_compressed_pcd(tmp_path, rng):
-    import open3d as o3d
+#: the 48 points of tests/data/open3d_grid_*.pcd: a 4 x 4 x 3 grid, exact in float32, written
+#: by Open3D with normals and colours (fields x y z normal_x normal_y normal_z rgb)
+def _open3d_grid() -> np.ndarray:
+    i, j, k = np.meshgrid(np.arange(4), np.arange(4), np.arange(3), indexing="ij")
+    return np.stack([i / 8 - 0.25, j / 4 + 0.5, k / 16 + 2.0], -1).reshape(-1, 3)
 
-    pts = rng.normal(size=(100, 3))
-    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
-    o3d.io.write_point_cloud(str(tmp_path / "a.pcd"), pcd, compressed=True)
-    np.testing.assert_allclose(read_frame(tmp_path / "a.pcd"), pts, atol=1e-6)
+
+@pytest.mark.parametrize("data", ["ascii", "binary", "binary_compressed"])
+def test_open3d_written_pcd(tmp_path, data):
+    """PCD files written by Open3D, one per DATA kind; the compressed one's LZF stream has
+    literal runs, long (extended) and overlapping matches."""
+    src = DATA / f"open3d_grid_{data}.pcd"
+    assert f"DATA {data}\n".encode() in src.read_bytes()
+    np.testing.assert_array_equal(read_frame(src), _open3d_grid())
+    for t in range(2):
+        shutil.copy(src, tmp_path / f"frame_{t}.pcd")
+    seq = read_sequence(tmp_path)
+    assert seq.fmt == "pcd" and len(seq) == 2
+    np.testing.assert_array_equal(seq[1], _open3d_grid())
+
+
+def _lzf_literals(data: bytes) -> bytes:
+    """LZF with literal runs only (control byte = run length - 1, runs of at most 32): valid
+    LZF by the format's definition, made without any match search."""
+    return b"".join(bytes([len(data[i:i + 32]) - 1]) + data[i:i + 32]
+                    for i in range(0, len(data), 32))
+
+
+def _pcd_compressed(header: str, raw: bytes, stream: bytes | None = None) -> bytes:
+    stream = _lzf_literals(raw) if stream is None else stream
+    return (header.encode() + np.array([len(stream), len(raw)], "<u4").tobytes() + stream)
+
+
+def test_compressed_pcd_fields_column_by_column(tmp_path, rng):
+    """A field before x, a field with COUNT 3 and mixed sizes: each field's values of all
+    points are stored contiguously, in the header's field order."""
+    n = 37
+    pts = rng.normal(size=(n, 3))
+    columns = [rng.integers(0, 2**16, size=(n, 3)).astype("<u2"), pts[:, 0].astype("<f8"),
+               pts[:, 1].astype("<f8"), pts[:, 2].astype("<f4"), np.zeros(n, "<u4")]
+    header = ("VERSION 0.7\nFIELDS intensity x y z rgb\nSIZE 2 8 8 4 4\nTYPE U F F F U\n"
+              f"COUNT 3 1 1 1 1\nWIDTH {n}\nHEIGHT 1\nPOINTS {n}\nDATA binary_compressed\n")
+    (tmp_path / "a.pcd").write_bytes(
+        _pcd_compressed(header, b"".join(c.tobytes() for c in columns)))
+    got = read_frame(tmp_path / "a.pcd")
+    np.testing.assert_array_equal(got[:, :2], pts[:, :2])
+    np.testing.assert_array_equal(got[:, 2], pts[:, 2].astype(np.float32))
+
+
+def test_lzf_decompress_by_the_format():
+    """Streams made by hand from the format: a literal run, a match that overlaps what it
+    writes, an extended length, a 13-bit offset."""
+    assert lzf_decompress(b"\x02abc", 3) == b"abc"
+    # ctrl 0x20: length 1 + 2, offset 0 + 1: repeats the one byte before it
+    assert lzf_decompress(b"\x00a\x20\x00", 4) == b"aaaa"
+    # ctrl 0xe0 + 10: length 7 + 10 + 2 = 19 copies of the two bytes "ab" back
+    assert lzf_decompress(b"\x01ab\xe0\x0a\x01", 21) == b"ab" * 10 + b"a"
+    text = bytes(range(256)) + bytes(range(100))
+    # ctrl 0x21, 0x00: length 3 from 0x100 + 0 + 1 = 257 bytes back
+    want = text + text[-257:-254]
+    assert lzf_decompress(_lzf_literals(text) + b"\x21\x00", len(want)) == want
+    assert lzf_decompress(b"", 0) == b""
+
+
+@pytest.mark.parametrize("stream, size, match", [
+    (b"\x05abc", 6, "past the end"),
+    (b"\x00a\x20\x01", 4, "before the start"),
+    (b"\x00a\xe0", 20, "ends inside"),
+    (b"\x00a\x20", 4, "ends inside"),
+    (b"\x02abc", 4, "3 bytes"),
+    (b"\x02abc", 2, "more than"),
+])
+def test_lzf_decompress_refuses_corrupt_streams(stream, size, match):
+    with pytest.raises(ValueError, match=match):
+        lzf_decompress(stream, size)
+
+
+def test_corrupt_compressed_pcd_names_the_file(tmp_path):
+    good = (DATA / "open3d_grid_binary_compressed.pcd").read_bytes()
+    head = good[:good.index(b"binary_compressed\n") + len(b"binary_compressed\n")]
+    sizes = np.frombuffer(good, "<u4", 2, len(head))
+    cases = {
+        "cut.pcd": (good[:-10], "truncated"),
+        "nosizes.pcd": (head + b"\x01", "no sizes"),
+        "small.pcd": (head + np.array([sizes[0], 40], "<u4").tobytes() + good[len(head) + 8:],
+                      "holds 40 bytes"),
+        "bad.pcd": (head + sizes.tobytes() + b"\x20\x05" + good[len(head) + 10:], "corrupt"),
+    }
+    for name, (body, match) in cases.items():
+        (tmp_path / name).write_bytes(body)
+        with pytest.raises(FormatError, match=match) as err:
+            read_frame(tmp_path / name)
+        assert name in str(err.value)
 
 
 @pytest.mark.parametrize("fmt", ["ply", "npy", "xyz", "pcd"])
-def test_own_writers_round_trip_and_open3d_reads_ply(tmp_path, rng, fmt):
+def test_own_writers_round_trip_and_plyfile_reads_ply(tmp_path, rng, fmt):
     frames = _frames(rng)
     write_sequence(tmp_path, frames, fmt=fmt)
     seq = read_sequence(tmp_path)
     for got, want in zip(seq.frames, frames):
         np.testing.assert_allclose(got, want, rtol=1e-8)
-    if fmt == "ply":  # open3d reads our binary float64 PLY (its PCD reader is float32-only)
-        import open3d as o3d
+    if fmt == "ply":  # an independent reader agrees on our binary float64 PLY
+        from plyfile import PlyData
 
-        pcd = o3d.io.read_point_cloud(str(tmp_path / "frame_0000.ply"))
-        np.testing.assert_allclose(np.asarray(pcd.points), frames[0], rtol=1e-12)
+        vert = PlyData.read(str(tmp_path / "frame_0000.ply"))["vertex"]
+        np.testing.assert_array_equal(np.stack([vert["x"], vert["y"], vert["z"]], 1), frames[0])
 
 
 def test_xyz_and_txt_with_extra_columns_and_comments(tmp_path):
@@ -110,22 +204,52 @@ def test_depth_png_back_projection(tmp_path):
     np.testing.assert_allclose(depth_to_points(depth, intr), want)
 
 
-def _open3d_recording(root: Path, rng: np.random.Generator, n_frames: int = 2):
+#: what Open3D's ``write_pinhole_camera_intrinsic`` writes for a 32 x 24 camera with
+#: fx 41, fy 37, cx 15.3, cy 11.8: ``K`` column-major, as its recorders' ``intrinsic.json``
+_OPEN3D_INTRINSIC_JSON = """{
+\t"height" : 24,
+\t"intrinsic_matrix" : 
+\t[
+\t\t41.0,
+\t\t0.0,
+\t\t0.0,
+\t\t0.0,
+\t\t37.0,
+\t\t0.0,
+\t\t15.300000000000001,
+\t\t11.800000000000001,
+\t\t1.0
+\t],
+\t"width" : 32
+}"""
+
+
+def _recorder_layout(root: Path, rng: np.random.Generator, n_frames: int = 2) -> list:
     """An Open3D-recorder layout: ``root/depth/000000.png ...`` (16-bit, mm) and
-    ``root/intrinsic.json`` written by Open3D itself. Returns the depth images and the
-    intrinsic."""
-    import open3d as o3d
+    ``root/intrinsic.json`` as Open3D writes it. Returns the depth images ``(24, 32)``."""
+    from PIL import Image
 
     (root / "depth").mkdir(parents=True)
-    intr = o3d.camera.PinholeCameraIntrinsic(32, 24, 41.0, 37.0, 15.3, 11.8)
-    o3d.io.write_pinhole_camera_intrinsic(str(root / "intrinsic.json"), intr)
+    (root / "intrinsic.json").write_text(_OPEN3D_INTRINSIC_JSON)
     depths = []
     for t in range(n_frames):
         d = rng.integers(400, 4000, size=(24, 32)).astype(np.uint16)
         d[rng.random(d.shape) < 0.3] = 0  # invalid pixels
-        o3d.io.write_image(str(root / "depth" / f"{t:06d}.png"), o3d.geometry.Image(d))
+        Image.fromarray(d).save(root / "depth" / f"{t:06d}.png")
         depths.append(d)
-    return depths, intr
+    return depths
+
+
+def _back_project(depth: np.ndarray, fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
+    """Pinhole back-projection pixel by pixel (mm depth, 0 = no depth), as Open3D's
+    ``create_from_depth_image``: ``x = (u - cx) z / fx``, ``y = (v - cy) z / fy``."""
+    rows = []
+    for v in range(depth.shape[0]):
+        for u in range(depth.shape[1]):
+            if depth[v, u]:
+                z = float(depth[v, u]) / 1000.0
+                rows.append(((u - cx) * z / fx, (v - cy) * z / fy, z))
+    return np.array(rows)
 
 
 def _sorted_rows(a: np.ndarray) -> np.ndarray:
@@ -134,18 +258,14 @@ def _sorted_rows(a: np.ndarray) -> np.ndarray:
 
 def test_depth_png_open3d_recorder_layout(tmp_path, rng):
     """A folder of depth PNGs with Open3D's ``intrinsic.json`` in the parent (its RealSense /
-    Azure Kinect recorders' layout) reads without options and back-projects as Open3D does."""
-    import open3d as o3d
-
-    depths, intr = _open3d_recording(tmp_path / "rec", rng)
+    Azure Kinect recorders' layout) reads without options and back-projects as a pinhole."""
+    depths = _recorder_layout(tmp_path / "rec", rng)
     seq = read_sequence(tmp_path / "rec" / "depth")
     assert seq.fmt == "depth-png" and len(seq) == 2
     for got, d in zip(seq.frames, depths):
-        pcd = o3d.geometry.PointCloud.create_from_depth_image(
-            o3d.geometry.Image(d), intr, depth_scale=1000.0, depth_trunc=100.0)
-        want = np.asarray(pcd.points)
+        want = _back_project(d, 41.0, 37.0, 15.3, 11.8)
         assert got.shape == want.shape == ((d > 0).sum(), 3)
-        np.testing.assert_allclose(_sorted_rows(got), _sorted_rows(want), atol=1e-6)
+        np.testing.assert_allclose(_sorted_rows(got), _sorted_rows(want), rtol=1e-12)
     # what was used is recorded (skeleton.json's "source", `pointrig info`)
     used = seq.meta["intrinsics"]
     assert used["path"] == str(tmp_path / "rec" / "intrinsic.json")
@@ -157,7 +277,7 @@ def test_depth_png_open3d_recorder_layout(tmp_path, rng):
 def test_info_names_the_intrinsics_used(tmp_path, rng, capsys):
     from pointrig.cli import main
 
-    _open3d_recording(tmp_path / "rec", rng)
+    _recorder_layout(tmp_path / "rec", rng)
     assert main(["info", str(tmp_path / "rec" / "depth")]) == 0
     out = capsys.readouterr().out
     assert "camera   fx 41 fy 37 cx 15.3 cy 11.8 px, depth unit 0.001 m" in out
@@ -438,7 +558,6 @@ def test_extract_on_a_recorder_folder_records_the_intrinsics(tmp_path):
     """A synthetic sequence written as an Open3D recorder's depth/ folder (16-bit mm PNGs,
     intrinsic.json beside the folder) runs through `pointrig extract` without options, the
     back-projected frames match the rendered points, and skeleton.json names the intrinsics."""
-    import open3d as o3d
     from PIL import Image
 
     from pointrig.cli import main
@@ -448,9 +567,9 @@ def test_extract_on_a_recorder_folder_records_the_intrinsics(tmp_path):
     cam = Camera.kinect(320)
     syn = synthesize("human", n_frames=4, seed=1, camera=cam)
     (tmp_path / "rec" / "depth").mkdir(parents=True)
-    o3d.io.write_pinhole_camera_intrinsic(
-        str(tmp_path / "rec" / "intrinsic.json"),
-        o3d.camera.PinholeCameraIntrinsic(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy))
+    (tmp_path / "rec" / "intrinsic.json").write_text(json.dumps({  # Open3D's layout
+        "width": cam.width, "height": cam.height,
+        "intrinsic_matrix": [cam.fx, 0.0, 0.0, 0.0, cam.fy, 0.0, cam.cx, cam.cy, 1.0]}))
     for t, pts in enumerate(syn.frames):
         u, v, _ = cam.project(pts)
         u, v = np.rint(u).astype(int), np.rint(v).astype(int)

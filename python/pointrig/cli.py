@@ -1,6 +1,6 @@
 """The ``pointrig`` command line. The only module that prints or exits.
 
-Subcommands: ``extract``, ``demo``, ``synth``, ``evaluate``, ``info``. Heavy imports (open3d,
+Subcommands: ``extract``, ``demo``, ``synth``, ``evaluate``, ``info``. Heavy imports (scipy,
 the pipeline) happen inside the subcommands so that ``pointrig --help`` and ``pointrig info``
 start fast.
 """

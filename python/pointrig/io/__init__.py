@@ -3,7 +3,7 @@
 Supported inputs (see :func:`read_sequence`):
 
 - a directory of per-frame files in natural order (``frame_2`` before ``frame_10``):
-  PLY (ascii and binary), PCD, XYZ/TXT, NPY;
+  PLY (ascii and binary), PCD (ascii, binary and binary_compressed), XYZ/TXT, NPY;
 - one ``.npz`` holding all frames;
 - a directory of 16-bit depth PNGs in millimetres plus an intrinsics JSON.
 

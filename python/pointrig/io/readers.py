@@ -17,7 +17,8 @@ from ..errors import EmptyFrameError, FormatError, InputError
 from ..sequence import PointSequence
 
 __all__ = ["FRAME_FORMATS", "detect_format", "read_frame", "read_sequence", "natural_key",
-           "read_intrinsics", "find_intrinsics", "INTRINSICS_NAMES", "depth_to_points"]
+           "read_intrinsics", "find_intrinsics", "INTRINSICS_NAMES", "depth_to_points",
+           "lzf_decompress"]
 
 #: suffix -> format name for per-frame files
 FRAME_FORMATS = {".ply": "ply", ".pcd": "pcd", ".xyz": "xyz", ".txt": "xyz", ".npy": "npy",
@@ -162,14 +163,101 @@ def _read_pcd(path: Path) -> np.ndarray:
         rec = np.frombuffer(raw, dtype=dtype, count=npts, offset=pos)
         return np.stack([rec["x"], rec["y"], rec["z"]], axis=1).astype(np.float64)
     if data == "binary_compressed":
-        import open3d as o3d  # lazy: heavy import
-
-        pcd = o3d.io.read_point_cloud(str(path), format="pcd")
-        pts = np.asarray(pcd.points, dtype=np.float64)
-        if pts.shape[0] != npts:
-            raise FormatError("could not decode binary_compressed PCD", path)
-        return pts
+        return _read_pcd_compressed(raw, pos, dtype, npts, path)
     raise FormatError(f"unsupported PCD DATA type {data!r}", path)
+
+
+def _read_pcd_compressed(raw: bytes, pos: int, dtype: np.dtype, npts: int, path: Path) -> np.ndarray:
+    """x, y, z of a ``binary_compressed`` PCD body (as PCL and Open3D write it).
+
+    The body is two little-endian uint32, the compressed and the uncompressed size in bytes,
+    then that many bytes of LZF data. Uncompressed, the fields are stored column by column:
+    field ``f`` of all ``npts`` points contiguously (``npts * itemsize(f)`` bytes), then the
+    next field.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(npts, 3)`` float64, in the file's units.
+    """
+    if len(raw) - pos < 8:
+        raise FormatError("truncated binary_compressed PCD body (no sizes)", path)
+    csize, usize = (int(v) for v in np.frombuffer(raw, dtype="<u4", count=2, offset=pos))
+    body = raw[pos + 8:pos + 8 + csize]
+    if len(body) < csize:
+        raise FormatError(f"truncated binary_compressed PCD body: expected {csize} compressed "
+                          f"bytes, found {len(body)}", path)
+    need = dtype.itemsize * npts
+    if usize < need:
+        raise FormatError(f"binary_compressed PCD holds {usize} bytes, {npts} points need "
+                          f"{need}", path)
+    try:
+        flat = lzf_decompress(body, usize)
+    except ValueError as exc:
+        raise FormatError(f"corrupt binary_compressed PCD data: {exc}", path) from None
+    columns = {}
+    offset = 0
+    for name in dtype.names:
+        ftype = dtype.fields[name][0]  # with its COUNT as a sub-array shape
+        if name in ("x", "y", "z"):
+            col = np.frombuffer(flat, dtype=ftype, count=npts, offset=offset)
+            columns[name] = col.reshape(npts, -1)[:, 0]
+        offset += ftype.itemsize * npts
+    return np.stack([columns["x"], columns["y"], columns["z"]], axis=1).astype(np.float64)
+
+
+def lzf_decompress(data: bytes, size: int) -> bytes:
+    """Decompress LZF data (liblzf's format, as in PCL's ``binary_compressed`` PCD) to exactly
+    ``size`` bytes.
+
+    The data is a sequence of chunks, each opened by a control byte ``c``: ``c < 32`` copies
+    the next ``c + 1`` bytes (a literal run); otherwise ``c >> 5`` is the match length minus 2
+    (7 means a further byte adds to it) and ``(c & 31) << 8`` plus the next byte, plus 1, is
+    how far back in the output the match starts; the match may overlap the bytes it makes.
+
+    Raises
+    ------
+    ValueError
+        Data that ends inside a chunk, points before the start of the output, or does not
+        decompress to exactly ``size`` bytes.
+    """
+    out = bytearray()
+    i, n = 0, len(data)
+    while i < n:
+        ctrl = data[i]
+        i += 1
+        if ctrl < 32:
+            run = ctrl + 1
+            if i + run > n:
+                raise ValueError("a literal run goes past the end of the data")
+            out += data[i:i + run]
+            i += run
+        else:
+            length = ctrl >> 5
+            if length == 7:
+                if i >= n:
+                    raise ValueError("the data ends inside a match")
+                length += data[i]
+                i += 1
+            if i >= n:
+                raise ValueError("the data ends inside a match")
+            back = ((ctrl & 0x1F) << 8) + data[i] + 1
+            i += 1
+            length += 2
+            start = len(out) - back
+            if start < 0:
+                raise ValueError("a match points before the start of the output")
+            if back >= length:
+                out += out[start:start + length]
+            else:  # overlapping: the last `back` bytes repeat
+                reps, rest = divmod(length, back)
+                chunk = out[start:]
+                out += chunk * reps + chunk[:rest]
+        if len(out) > size:
+            raise ValueError(f"more than the {size} bytes the header gives")
+    if len(out) != size:
+        raise ValueError(f"{len(out)} bytes, the header gives {size}")
+    return bytes(out)
 
 
 def _read_xyz(path: Path) -> np.ndarray:
