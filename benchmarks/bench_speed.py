@@ -31,7 +31,6 @@ from scipy.spatial import cKDTree
 import pointrig.joints as joints_mod
 import pointrig.preprocess as pre_mod
 import pointrig.registration as reg_mod
-import pointrig.structure as structure_mod
 from benchmarks.sets import add_sequence_options, chosen, suite
 from pointrig.config import PipelineConfig
 from pointrig.pipeline import extract

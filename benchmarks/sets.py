@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from pointrig.config import JointsConfig, PipelineConfig, RegistrationConfig
+from pointrig.config import PipelineConfig
 from pointrig.evaluate import EvalReport, evaluate
 from pointrig.sequence import PointSequence
 from pointrig.synth import Camera, NoiseConfig, SynthSequence, synthesize

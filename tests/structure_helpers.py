@@ -96,7 +96,8 @@ def sample_surface(fig: Figure, n_points: int, rng: np.random.Generator):
     pts, lab = [], []
     for p in range(P):
         ax = (fig.b[p] - fig.a[p]) / length[p]
-        u = np.cross(ax, [0.3, 0.5, 0.8]); u /= np.linalg.norm(u)
+        u = np.cross(ax, [0.3, 0.5, 0.8])
+        u /= np.linalg.norm(u)
         v = np.cross(ax, u)
         s = rng.uniform(-fig.radius[p], length[p] + fig.radius[p], n[p])
         phi = rng.uniform(0, 2 * np.pi, n[p])
@@ -137,8 +138,10 @@ def animate(fig: Figure, n_frames: int, rng: np.random.Generator, amp_deg=(35.0,
         if np.linalg.norm(fig.hinge[p]) > 0:
             local[:, p] = (amp * phase)[:, None] * fig.hinge[p]
         else:
-            ax2 = rng.normal(size=3); ax2 /= np.linalg.norm(ax2)
-            ax1 = rng.normal(size=3); ax1 /= np.linalg.norm(ax1)
+            ax2 = rng.normal(size=3)
+            ax2 /= np.linalg.norm(ax2)
+            ax1 = rng.normal(size=3)
+            ax1 /= np.linalg.norm(ax1)
             f2 = rng.uniform(0.5, 1.5)
             local[:, p] = (amp * phase)[:, None] * ax1 + (0.5 * amp * np.sin(2 * np.pi * f2 * t))[:, None] * ax2
     drift = np.stack([0.1 * np.sin(2 * np.pi * t), 0.02 * t, 0.05 * t], 1)

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pointrig.cli import main
-from pointrig.io import write_sequence
 from pointrig.background import find_background_planes, remove_background
+from pointrig.cli import main
 from pointrig.geometry import connected_pieces_exact
+from pointrig.io import write_sequence
 from pointrig.sequence import PointSequence
 from pointrig.synth import Camera, NoiseConfig, synthesize
 

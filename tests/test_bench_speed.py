@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 from benchmarks import bench_speed
@@ -37,7 +35,6 @@ def test_serial_form_sets_and_restores_its_functions() -> None:
     """Inside ``serial()`` every worker count is 1 and the modules use the reference chamfer;
     afterwards (also after an error) the defaults are back. Every module-level worker count
     of the package is one the serial form sets."""
-    import pointrig
 
     before = {(m, n): getattr(m, n) for m, n in bench_speed.PATCHED}
     with pytest.raises(RuntimeError):

@@ -128,6 +128,8 @@ BAD = [
     (StructureConfig, "leaf_split_min_points", -1),
     (StructureConfig, "leaf_split_max_ratio", -0.5),
     (StructureConfig, "split_disconnected", 100.0),
+    (StructureConfig, "joint_penalty", -1.0),
+    (StructureConfig, "joint_frames", 0),
     (StructureConfig, "view_depth_quantile", 0.5),
     (StructureConfig, "camera_position", None),
     (StructureConfig, "single_view", "maybe"),
@@ -234,7 +236,7 @@ def test_paper_presets_hold_table1_and_the_papers_method():
     assert st.cluster_rounds == 10 and st.eta == 1.0 and st.root_end_alignment == 0.0
     assert (st.vote_guard_ratio, st.neighbor_stretch, st.band_ratio, st.invisible_bone_fraction,
             st.leaf_split_angle_deg, st.split_disconnected) == (0.0,) * 6
-    assert st.leaf_root == "keep"
+    assert st.leaf_root == "keep" and st.joint_penalty == 0.0
     # §6, Algorithm 2, Table 1, §7.2
     assert (jt.omega, jt.eta, jt.zeta, jt.gamma, jt.tau_init) == (0.01, 1.0, 1e4, 0.1, 6e-4)
     assert jt.mode == "paper" and jt.init == "structure" and jt.alpha_init is None

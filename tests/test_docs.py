@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+
 from pointrig import config
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -12,8 +12,13 @@ from scipy.optimize import minimize
 from pointrig import _core
 from pointrig.config import JointsConfig
 from pointrig.errors import ConfigError, InputError
-from pointrig.joints import (JointsResult, learn_joints, solve_joints_articulated, subsample_frames,
-                             track_bones)
+from pointrig.joints import (
+    JointsResult,
+    learn_joints,
+    solve_joints_articulated,
+    subsample_frames,
+    track_bones,
+)
 from pointrig.kinematics import joint_trajectories, skin
 
 

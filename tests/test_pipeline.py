@@ -108,8 +108,7 @@ def test_config_file_errors_name_the_parameter(tmp_path):
 def test_every_choice_parameter_is_checked_when_the_config_is_made():
     """Each string parameter with a fixed set of values rejects anything else at construction
     (a ConfigError naming the stage and field); every listed value is accepted."""
-    from pointrig.config import (JointsConfig, PreprocessConfig, RegistrationConfig,
-                                 StructureConfig)
+    from pointrig.config import JointsConfig, PreprocessConfig, RegistrationConfig, StructureConfig
 
     choices = {
         PreprocessConfig: {"background": ("auto", "keep")},

@@ -12,8 +12,8 @@ from scipy.spatial import cKDTree
 
 from pointrig.config import PipelineConfig, PreprocessConfig, RegistrationConfig
 from pointrig.errors import ConfigError, EmptyFrameError
-from pointrig.pipeline import extract
 from pointrig.geometry import knn_graph, remove_sparse_points, remove_statistical_outliers
+from pointrig.pipeline import extract
 from pointrig.preprocess import remove_sparse_frames, rest_surface
 from pointrig.registration import register_sequence
 from pointrig.sequence import PointSequence

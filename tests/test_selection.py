@@ -4,8 +4,9 @@ motion is known exactly: a joint inside a rigid part must go, a joint that turns
 from __future__ import annotations
 
 import numpy as np
-from pointrig.selection import select_joints
 from scipy.spatial.transform import Rotation
+
+from pointrig.selection import select_joints
 
 
 def _box_surface(lo: np.ndarray, hi: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:

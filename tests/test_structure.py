@@ -7,10 +7,12 @@ import json
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
+from structure_helpers import make_sequence, purity
 
 from pointrig import _core
 from pointrig.config import StructureConfig
 from pointrig.errors import ConfigError, FormatError, InputError
+from pointrig.kinematics import joint_trajectories
 from pointrig.structure import (
     StructureResult,
     eq15_weights,
@@ -22,8 +24,6 @@ from pointrig.structure import (
     to_skeleton,
     write_structure_outputs,
 )
-from pointrig.kinematics import joint_trajectories
-from structure_helpers import make_sequence, purity
 
 
 def _kabsch_oracle(src, dst, w):

@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
+from structure_helpers import bone_to_part, make_sequence, purity, topology_matches
 
 from pointrig.config import StructureConfig
 from pointrig.structure import extract_structure
-from structure_helpers import bone_to_part, make_sequence, purity, topology_matches
 
 CLEAN = dict()
 # registration-like degradation: 3-5 mm jitter, LBS blending over 6-12 cm around every joint

@@ -384,8 +384,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--stride", type=int, default=1, help="GT frame stride used for extraction")
     p.add_argument("--swing-source", choices=SWING_SOURCES, default="auto",
                    help="motions of the 'visibly articulates' test: the rig's bone transforms "
-                        "(auto: when gt.npz has them) or Kabsch fits of the surface parts "
-                        "(the rule before session 21)")
+                        "(auto: when gt.npz has them) or Kabsch fits of the surface parts")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=cmd_evaluate)
 

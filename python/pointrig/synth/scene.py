@@ -19,7 +19,6 @@ from typing import Any
 import numpy as np
 
 from ..errors import ConfigError
-
 from .camera import Camera
 from .figures import FIGURES, make_figure, rodrigues
 from .noise import NoiseConfig, apply_depth_noise, lateral_offsets, outliers_in_box
