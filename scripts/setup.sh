@@ -38,9 +38,11 @@ fi
 stamp=.venv/.pointrig-deps
 reqs=$(.venv/bin/python - <<'PYEOF'
 import tomllib
-project = tomllib.load(open("pyproject.toml", "rb"))["project"]
-build = tomllib.load(open("pyproject.toml", "rb"))["build-system"]["requires"]
-print("\n".join(build + project["dependencies"] + project["optional-dependencies"]["dev"]))
+with open("pyproject.toml", "rb") as fh:
+    doc = tomllib.load(fh)
+project = doc["project"]
+print("\n".join(doc["build-system"]["requires"] + project["dependencies"]
+                + project["optional-dependencies"]["dev"]))
 PYEOF
 )
 want=$(printf '%s\n' "$reqs" | cat - constraints.txt | sha256sum | cut -c1-16)
