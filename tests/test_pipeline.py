@@ -306,11 +306,13 @@ def test_joint_depth_is_off_on_input_that_is_not_one_view(demo_run, tmp_path):
 
 def test_output_skeleton_is_what_extract_writes():
     """The output stage is one function (:func:`pointrig.pipeline.output_skeleton`), so a
-    benchmark that reruns step 3 on cached inputs (benchmarks/bench_step3.py) scores what
-    ``extract`` outputs: applied to extract's own step-3 result and frames it gives the same
-    joints, tree and bone transforms exactly. Without the observed frames (a step-2 skeleton)
-    only the output tree is applied: same tree, joints moved along their camera rays only by
-    the depth pass (the demo's camera is the origin)."""
+    study that reruns the output stage on cached inputs scores what ``extract`` outputs:
+    applied to extract's own step-3 result and frames it gives the same joints, tree and bone
+    transforms exactly. Without the observed frames (a step-2 skeleton) only the output tree
+    is applied: with the joint selection off, the same tree, and joints moved along their
+    camera rays only by the depth pass (the demo's camera is the origin)."""
+    import dataclasses
+
     from pointrig.config import PipelineConfig
     from pointrig.io import read_sequence
     from pointrig.pipeline import extract, output_skeleton
@@ -330,9 +332,14 @@ def test_output_skeleton_is_what_extract_writes():
     np.testing.assert_array_equal(again.joint_positions, res.skeleton.joint_positions)
     np.testing.assert_array_equal(again.bone_rotations, res.skeleton.bone_rotations)
     assert "joint_depth" in timings
-    tree_only = output_skeleton(*args)
-    np.testing.assert_array_equal(tree_only.parents, res.skeleton.parents)
-    moved = res.skeleton.rest_positions - tree_only.rest_positions
+    cfg0 = dataclasses.replace(cfg, structure=dataclasses.replace(cfg.structure,
+                                                                  joint_penalty=0.0))
+    args0 = args[:7] + (cfg0, args[8])
+    full0 = output_skeleton(*args0, observed=(frames, final.points))
+    assert len(full0.parents) >= len(again.parents)
+    tree_only = output_skeleton(*args0)
+    np.testing.assert_array_equal(tree_only.parents, full0.parents)
+    moved = full0.rest_positions - tree_only.rest_positions
     ray = tree_only.rest_positions / np.linalg.norm(tree_only.rest_positions, axis=1,
                                                    keepdims=True)
     along = np.sum(moved * ray, axis=1)

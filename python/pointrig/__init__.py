@@ -32,7 +32,7 @@ from .skeleton import Skeleton, load_skeleton_json
 
 __version__: str = _core.__version__
 
-# The pipeline steps import scipy (and open3d inside functions); load them on first use so
+# The pipeline steps import scipy; load them on first use so
 # that `import pointrig` and `pointrig --help` stay fast.
 _LAZY = {
     "RegistrationResult": "registration",
