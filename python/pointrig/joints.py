@@ -768,28 +768,11 @@ def learn_joints(
     size2 = float(np.sum((Q.max(0) - Q.min(0)) ** 2))  # squared rest bounding-box diagonal
     K = min(cfg.max_bones_per_point, B)
     c_tilde = np.asarray(structure.c_tilde, dtype=float)
-    R = np.array(structure.R, dtype=float)
-    T = np.array(structure.T, dtype=float)
-    t_track = 0.0
     # observed points of the E-steps (tracking and EM): subsampled per frame (the statistics
     # scale with N_t, which gmm_density_normalize divides out), packed once for the kernel
     obs = subsample_frames(frames, cfg.estep_max_points)
-    if cfg.init == "track":
-        if rest_index is None:
-            rest_index = int(np.argmin(((Y - Q[None]) ** 2).sum(axis=(1, 2))))
-        if not 0 <= rest_index < F:
-            raise InputError(f"rest_index {rest_index} outside the {F} frames")
-        t_tr = time.perf_counter()
-        track_normals = None
-        if cfg.track_normal_kappa > 0:
-            radius = cfg.normal_radius * mean_spacing(Q)
-            track_normals = (
-                estimate_normals(Q, radius, source=frames[int(rest_index)]),
-                [estimate_normals(o, radius, source=v) for o, v in zip(obs, frames)],
-            )
-        R, T = track_bones(obs, Q, structure, int(rest_index), cfg, track_progress,
-                           track_normals)
-        t_track = time.perf_counter() - t_tr
+    R, T, t_track = _initial_motions(frames, obs, Q, Y, structure, cfg, rest_index,
+                                     track_progress)
     joints = np.array(structure.joints_rest, dtype=float)
     W = np.zeros((M, B))
     W[np.arange(M), np.asarray(structure.labels)] = 1.0
@@ -809,14 +792,7 @@ def learn_joints(
     diag: dict[str, list] = {k: [] for k in (
         "e_gmm", "e_register", "e_joint", "e_small", "alpha", "joint_shift", "tau_mean",
         "t_estep", "t_weights", "t_bones", "t_joints")}
-    allowed = None
-    if cfg.weight_candidates == "tree":
-        # only the point's step-2 bone and the bones adjacent to it in the tree
-        adj = np.eye(B, dtype=bool)
-        for k_, p_ in enumerate(parent):
-            if p_ >= 0:
-                adj[k_, p_] = adj[p_, k_] = True
-        allowed = np.ascontiguousarray(adj[np.asarray(structure.labels)])
+    allowed = _weight_candidates(parent, structure.labels, cfg)
     X = skin_all(W, R, T)
     packed = pack_frames(obs)
     n_obs = np.array([len(v) for v in obs], float)
@@ -827,78 +803,24 @@ def learn_joints(
         t0 = time.perf_counter()
         # ---- E-step (Eq. 4 form) and the reduced data term
         st = e_step(obs, X, tau, cfg.omega, cfg.estep_radius_sigmas, True, packed=packed)
-        a_g = st.P1 / tau[:, None]
-        if cfg.gmm_density_normalize:
-            # one unit of evidence per template point, not per observed point (N_t / M)
-            a_g = a_g * (M / n_obs)[:, None]
-        a = a_g + zeta
-        num = a_g[..., None] * (st.PX / np.maximum(st.P1, 1e-300)[..., None]) + zeta * Y
-        safe = np.where(a > 0, a, 1.0)
-        z = np.where((a > 0)[..., None], num / safe[..., None], X)
-        a = np.ascontiguousarray(a)
-        zf = np.ascontiguousarray(z.reshape(F * M, 3))
+        a, z, zf = _data_term(st, tau, zeta, Y, X, n_obs, cfg)
         t1 = time.perf_counter()
         R_pre, T_pre = R.copy(), T.copy()
-
         # ---- weights (Eq. 22)
         if cfg.update_weights:
-            Rf, Tf = _flat_rt(R, T)
-            idx, w, _ = _core.lbs_fit_weights(Q, Rf, Tf, a, zf, F, K, allowed)
-            Wn = _sparse_to_dense(idx, w, B)
-            seen = a.sum(0) > 0
-            W = np.where(seen[:, None], Wn, W)
+            W = _fit_weights(Q, R, T, a, zf, K, allowed, W)
         t2 = time.perf_counter()
-        idx, w = _dense_to_sparse(W, K)
-
         # ---- bones (Eqs. 23-26) and joints (Eq. 20)
-        if articulated:
-            joints, T = solve_joints_articulated(Q, W, R, a, z, parent, c_prior,
-                                                 cfg.eta * cfg.joint_prior, T[:, root])
-            t3 = time.perf_counter()
-            smooth = None
-            if cfg.rotation_smoothing > 0 and F > 2:
-                smooth = np.full(B, cfg.rotation_smoothing * float(np.mean(a)) * size2)
-            for _ in range(cfg.bone_sweeps):
-                Rf, Tf = _flat_rt(R, T)
-                Rn, Tn = _core.lbs_sweep_articulated(
-                    Q, idx, w, Rf, Tf, a, zf, _flat_rt(R_pre, T_pre)[0], parent, joints,
-                    cfg.gamma, F, smooth)
-                R, T = Rn.reshape(F, B, 3, 3), Tn.reshape(F, B, 3)
-            t4 = time.perf_counter()
-            joints, T = solve_joints_articulated(Q, W, R, a, z, parent, c_prior,
-                                                 cfg.eta * cfg.joint_prior, T[:, root])
-        else:
-            t3 = time.perf_counter()
-            for _ in range(cfg.bone_sweeps):
-                Rf, Tf = _flat_rt(R, T)
-                Rpf, Tpf = _flat_rt(R_pre, T_pre)
-                Rn, Tn = _core.lbs_sweep_paper(
-                    Q, idx, w, Rf, Tf, a, zf, Rpf, Tpf, parent, joints, alpha, cfg.gamma, F)
-                R, T = Rn.reshape(F, B, 3, 3), Tn.reshape(F, B, 3)
-            t4 = time.perf_counter()
-            joints = solve_joint_positions(R, T, parent, c_prior, cfg.eta)
+        R, T, joints, smooth, t3, t4 = _fit_bones_and_joints(
+            Q, W, R, T, R_pre, T_pre, a, z, zf, parent, joints, c_prior, alpha, size2, K, cfg)
         t5 = time.perf_counter()
-
         # ---- deformed points (Eq. 13) and covariances (Eq. 12 form)
         X = skin_all(W, R, T)
-        e_gmm, ss = _gmm_energy(st, X, tau)
+        _, ss = _gmm_energy(st, X, tau)
         tau = np.maximum(ss / (3 * np.maximum(st.Np, 1e-12)), cfg.tau_min)
-        e_gmm, _ = _gmm_energy(st, X, tau)
-        e_reg = float(np.sum((Y - X) ** 2))
-        e_joint_cons = _joint_term(R, T, joints, parent)
-        nr = parent >= 0
-        e_prior = float(np.sum((joints[nr] - c_tilde[nr]) ** 2))
-        e_small = float(np.sum((R - R_pre) ** 2) + np.sum((T - T_pre) ** 2))
-        e_smooth = float(np.sum((R[2:] - 2 * R[1:-1] + R[:-2]) ** 2))
-        if articulated:
-            lam_scale = cfg.eta * cfg.joint_prior * float(np.mean(a.sum(1)))
-            e_joint = lam_scale * e_prior
-            total = e_gmm + 0.5 * zeta * e_reg + 0.5 * e_joint + 0.5 * cfg.gamma * e_small
-            if smooth is not None:
-                total += 0.5 * float(smooth[0]) * e_smooth
-        else:
-            e_joint = cfg.eta * e_prior + e_joint_cons
-            total = e_gmm + 0.5 * zeta * e_reg + 0.5 * alpha * e_joint + 0.5 * cfg.gamma * e_small
+        total, e_gmm, e_reg, e_joint, e_small = _energy(
+            st, X, tau, Y, R, T, R_pre, T_pre, joints, parent, c_tilde, a, zeta, alpha, smooth,
+            cfg)
         energy.append(float(total))
         shift = float(np.max(np.linalg.norm(joints - joints0, axis=1))) if it == 1 else float(
             np.max(np.linalg.norm(joints - diag["_prev_joints"], axis=1)))  # type: ignore[arg-type]
@@ -922,10 +844,7 @@ def learn_joints(
     diag.pop("_prev_joints", None)
     if it > 0 and not cfg.update_weights:
         # blend weights for the output only (Eq. 22 once, with the last data term)
-        Rf, Tf = _flat_rt(R, T)
-        idx, w, _ = _core.lbs_fit_weights(Q, Rf, Tf, a, zf, F, K, allowed)
-        Wn = _sparse_to_dense(idx, w, B)
-        W = np.where((a.sum(0) > 0)[:, None], Wn, W)
+        W = _fit_weights(Q, R, T, a, zf, K, allowed, W)
     out_diag: dict[str, Any] = dict(diag)
     out_diag["iterations"] = it
     out_diag["mode"] = cfg.mode
@@ -933,3 +852,162 @@ def learn_joints(
     out_diag["t_track"] = t_track
     out_diag["joints_step2"] = np.asarray(structure.joints_rest, dtype=float)
     return JointsResult(W, R, T, joints, tau, energy, parent.copy(), root, out_diag)
+
+
+def _initial_motions(frames: list[np.ndarray], obs: list[np.ndarray], Q: np.ndarray,
+                     Y: np.ndarray, structure: StructureLike, cfg: JointsConfig,
+                     rest_index: int | None,
+                     track_progress: Callable[[int, int], None] | None
+                     ) -> tuple[np.ndarray, np.ndarray, float]:
+    """The bone motions the EM starts from, ``R (F, B, 3, 3)``, ``T (F, B, 3)`` (metres), and
+    the seconds spent: step 2's with ``init="structure"``; with ``init="track"`` step 2's
+    skeleton fitted to the subsampled frames ``obs`` outwards from ``rest_index``
+    (:func:`track_bones`, with normals when ``track_normal_kappa > 0``).
+
+    Raises
+    ------
+    InputError
+        If ``rest_index`` is outside the frames.
+    """
+    R = np.array(structure.R, dtype=float)
+    T = np.array(structure.T, dtype=float)
+    if cfg.init != "track":
+        return R, T, 0.0
+    F = len(Y)
+    if rest_index is None:
+        rest_index = int(np.argmin(((Y - Q[None]) ** 2).sum(axis=(1, 2))))
+    if not 0 <= rest_index < F:
+        raise InputError(f"rest_index {rest_index} outside the {F} frames")
+    t_tr = time.perf_counter()
+    track_normals = None
+    if cfg.track_normal_kappa > 0:
+        radius = cfg.normal_radius * mean_spacing(Q)
+        track_normals = (
+            estimate_normals(Q, radius, source=frames[int(rest_index)]),
+            [estimate_normals(o, radius, source=v) for o, v in zip(obs, frames)],
+        )
+    R, T = track_bones(obs, Q, structure, int(rest_index), cfg, track_progress, track_normals)
+    return R, T, time.perf_counter() - t_tr
+
+
+def _weight_candidates(parent: np.ndarray, labels: np.ndarray, cfg: JointsConfig
+                       ) -> np.ndarray | None:
+    """``(M, B)`` bool mask of the bones a point may be skinned to with
+    ``weight_candidates="tree"`` (its step-2 bone and the bones adjacent to it in the tree),
+    else ``None`` (every bone)."""
+    if cfg.weight_candidates != "tree":
+        return None
+    B = len(parent)
+    adj = np.eye(B, dtype=bool)
+    for k_, p_ in enumerate(parent):
+        if p_ >= 0:
+            adj[k_, p_] = adj[p_, k_] = True
+    return np.ascontiguousarray(adj[np.asarray(labels)])
+
+
+def _data_term(st: EStats, tau: np.ndarray, zeta: float, Y: np.ndarray, X: np.ndarray,
+               n_obs: np.ndarray, cfg: JointsConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The reduced data term ``sum a/2 |x - z|^2`` of ``E_GMM + zeta/2 E_Register`` (module
+    docstring): weights ``a (F, M)``, targets ``z (F, M, 3)`` (metres; ``X`` where ``a = 0``)
+    and ``z`` flattened to ``(F M, 3)``, from the E-step statistics ``st``, the covariances
+    ``tau (F,)``, the registered points ``Y`` and the deformed points ``X (F, M, 3)``."""
+    F, M = Y.shape[:2]
+    a_g = st.P1 / tau[:, None]
+    if cfg.gmm_density_normalize:
+        # one unit of evidence per template point, not per observed point (N_t / M)
+        a_g = a_g * (M / n_obs)[:, None]
+    a = a_g + zeta
+    num = a_g[..., None] * (st.PX / np.maximum(st.P1, 1e-300)[..., None]) + zeta * Y
+    safe = np.where(a > 0, a, 1.0)
+    z = np.where((a > 0)[..., None], num / safe[..., None], X)
+    a = np.ascontiguousarray(a)
+    zf = np.ascontiguousarray(z.reshape(F * M, 3))
+    return a, z, zf
+
+
+def _fit_weights(Q: np.ndarray, R: np.ndarray, T: np.ndarray, a: np.ndarray, zf: np.ndarray,
+                 K: int, allowed: np.ndarray | None, W: np.ndarray) -> np.ndarray:
+    """Skinning weights ``(M, B)`` by Eq. 22 (at most ``K`` bones a point, Rust); a point no
+    frame's data term sees (``a`` summed over frames is 0) keeps its row of ``W``."""
+    F, B = R.shape[:2]
+    Rf, Tf = _flat_rt(R, T)
+    idx, w, _ = _core.lbs_fit_weights(Q, Rf, Tf, a, zf, F, K, allowed)
+    Wn = _sparse_to_dense(idx, w, B)
+    seen = a.sum(0) > 0
+    return np.where(seen[:, None], Wn, W)
+
+
+def _fit_bones_and_joints(Q: np.ndarray, W: np.ndarray, R: np.ndarray, T: np.ndarray,
+                          R_pre: np.ndarray, T_pre: np.ndarray, a: np.ndarray, z: np.ndarray,
+                          zf: np.ndarray, parent: np.ndarray, joints: np.ndarray,
+                          c_prior: np.ndarray, alpha: float, size2: float, K: int,
+                          cfg: JointsConfig
+                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None,
+                                     float, float]:
+    """One M-step of the bones (Eqs. 23-26, ``cfg.bone_sweeps`` Rust sweeps) and the joints.
+
+    ``mode="articulated"``: joints and translations solved jointly (:func:`solve_joints_articulated`)
+    before and after the sweeps, which rotate each bone about its head joint, with the rotation
+    smoothing weights (``(B,)`` or ``None``); ``mode="paper"``: the sweeps with the soft joint
+    term ``alpha``, then the joints by Eq. 20. Returns ``R (F, B, 3, 3)``, ``T (F, B, 3)``,
+    the joints ``(B, 3)`` (metres), the smoothing weights (``None`` for ``"paper"``) and the
+    ``perf_counter`` times at the start and end of the sweeps.
+    """
+    F, B = R.shape[:2]
+    root = int(np.flatnonzero(parent < 0)[0])
+    idx, w = _dense_to_sparse(W, K)
+    smooth = None
+    if cfg.mode == "articulated":
+        joints, T = solve_joints_articulated(Q, W, R, a, z, parent, c_prior,
+                                             cfg.eta * cfg.joint_prior, T[:, root])
+        t3 = time.perf_counter()
+        if cfg.rotation_smoothing > 0 and F > 2:
+            smooth = np.full(B, cfg.rotation_smoothing * float(np.mean(a)) * size2)
+        for _ in range(cfg.bone_sweeps):
+            Rf, Tf = _flat_rt(R, T)
+            Rn, Tn = _core.lbs_sweep_articulated(
+                Q, idx, w, Rf, Tf, a, zf, _flat_rt(R_pre, T_pre)[0], parent, joints,
+                cfg.gamma, F, smooth)
+            R, T = Rn.reshape(F, B, 3, 3), Tn.reshape(F, B, 3)
+        t4 = time.perf_counter()
+        joints, T = solve_joints_articulated(Q, W, R, a, z, parent, c_prior,
+                                             cfg.eta * cfg.joint_prior, T[:, root])
+    else:
+        t3 = time.perf_counter()
+        for _ in range(cfg.bone_sweeps):
+            Rf, Tf = _flat_rt(R, T)
+            Rpf, Tpf = _flat_rt(R_pre, T_pre)
+            Rn, Tn = _core.lbs_sweep_paper(
+                Q, idx, w, Rf, Tf, a, zf, Rpf, Tpf, parent, joints, alpha, cfg.gamma, F)
+            R, T = Rn.reshape(F, B, 3, 3), Tn.reshape(F, B, 3)
+        t4 = time.perf_counter()
+        joints = solve_joint_positions(R, T, parent, c_prior, cfg.eta)
+    return R, T, joints, smooth, t3, t4
+
+
+def _energy(st: EStats, X: np.ndarray, tau: np.ndarray, Y: np.ndarray, R: np.ndarray,
+            T: np.ndarray, R_pre: np.ndarray, T_pre: np.ndarray, joints: np.ndarray,
+            parent: np.ndarray, c_tilde: np.ndarray, a: np.ndarray, zeta: float, alpha: float,
+            smooth: np.ndarray | None, cfg: JointsConfig
+            ) -> tuple[float, float, float, float, float]:
+    """The objective after an iteration and its terms: ``(total, E_GMM, E_Register, joint
+    term, small-motion term)``. ``"articulated"``: the joint term is the prior
+    ``eta |c - c~|^2`` scaled by the mean data weight, plus the rotation smoothing; ``"paper"``:
+    ``eta |c - c~|^2`` plus the second sum of Eq. 20, weighted by ``alpha``."""
+    e_gmm, _ = _gmm_energy(st, X, tau)
+    e_reg = float(np.sum((Y - X) ** 2))
+    e_joint_cons = _joint_term(R, T, joints, parent)
+    nr = parent >= 0
+    e_prior = float(np.sum((joints[nr] - c_tilde[nr]) ** 2))
+    e_small = float(np.sum((R - R_pre) ** 2) + np.sum((T - T_pre) ** 2))
+    e_smooth = float(np.sum((R[2:] - 2 * R[1:-1] + R[:-2]) ** 2))
+    if cfg.mode == "articulated":
+        lam_scale = cfg.eta * cfg.joint_prior * float(np.mean(a.sum(1)))
+        e_joint = lam_scale * e_prior
+        total = e_gmm + 0.5 * zeta * e_reg + 0.5 * e_joint + 0.5 * cfg.gamma * e_small
+        if smooth is not None:
+            total += 0.5 * float(smooth[0]) * e_smooth
+    else:
+        e_joint = cfg.eta * e_prior + e_joint_cons
+        total = e_gmm + 0.5 * zeta * e_reg + 0.5 * alpha * e_joint + 0.5 * cfg.gamma * e_small
+    return total, e_gmm, e_reg, e_joint, e_small

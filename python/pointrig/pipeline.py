@@ -101,17 +101,49 @@ def extract(
         When a frame spans more than ``config.preprocess.max_extent`` metres (input not in
         metres, :func:`pointrig.sequence.check_units`), before anything is written.
     """
-    from . import joints as joints_mod
-    from . import registration as reg_mod
-    from . import structure as struct_mod
-
     config = config or PipelineConfig()
     check_units(seq, config.preprocess.max_extent)
     out = None if out_dir is None else Path(out_dir)
     timings: dict[str, float] = {}
     n_input = [int(c) for c in seq.counts]
+    seq, removed = _clean_input(seq, config, timings)
+    reg, reused, ckpt = _step1(seq, config, out, resume, timings, progress)
+    result = ExtractResult(None, reg, timings=timings, reused_registration=reused,
+                           sparse_removed=removed, frames=list(seq.frames))
+    if ckpt is not None:
+        result.files["registration"] = ckpt
+    if stop_after == "registration":
+        return result
+    st = _step2(reg.rest_points, reg.points, config, timings, progress, "bones")
+    result.structure = st
+    if stop_after == "structure":
+        weights = np.eye(len(st.bone_parent))[st.labels]
+        labels, joints_rest, R, T = st.labels, st.joints_rest, st.R, st.T
+    else:
+        st, jr, refined = _step3_with_refinement(seq, reg, st, config, timings, progress)
+        result.structure, result.refined_registration, result.joints = st, refined, jr
+        weights, labels = jr.weights, np.argmax(jr.weights, axis=1)
+        joints_rest, R, T = jr.joints_rest, jr.R, jr.T
+    final = result.refined_registration or reg
+    result.skeleton = output_skeleton(
+        reg.rest_points, labels, st.bone_parent, joints_rest, R, T, weights, config,
+        st.view_camera, observed=(seq.frames, final.points) if stop_after == "joints" else None,
+        timings=timings)
+    if out is not None:
+        _write_outputs(out, seq, reg, result, config, stop_after, n_input, pictures)
+    return result
 
-    # ---- input clean-up: sparse points (flying pixels, outliers) out of every frame -----
+
+def _report(progress: Progress | None, step: str) -> Callable[[int, int], None]:
+    """``progress`` as a step's ``(done, total)`` callback (a no-op without ``progress``)."""
+    return lambda done, total: progress(step, done, total, "") if progress else None
+
+
+def _clean_input(seq: PointSequence, config: PipelineConfig, timings: dict[str, float]
+                 ) -> tuple[PointSequence, np.ndarray]:
+    """Input clean-up: sparse points (flying pixels, outliers) out of every frame
+    (:func:`pointrig.preprocess.remove_sparse_frames`); the cleaned sequence and the ``(F,)``
+    fraction of each frame's points removed. Its seconds go to ``timings["clean-up"]``."""
     t0 = time.perf_counter()
     seq, removed = remove_sparse_frames(seq, config.preprocess.sparse_neighbors,
                                         config.preprocess.sparse_ratio)
@@ -119,11 +151,17 @@ def extract(
     if removed.any():
         log.info("removed %.1f %% of the points as sparse (most %.1f %%, frame %d)",
                  100 * removed.mean(), 100 * removed.max(), int(np.argmax(removed)))
+    return seq, removed
 
-    def report(step: str) -> Callable[[int, int], None]:
-        return lambda done, total: progress(step, done, total, "") if progress else None
 
-    # ---- step 1: registration (with checkpoint) ---------------------------------------
+def _step1(seq: PointSequence, config: PipelineConfig, out: Path | None, resume: bool,
+           timings: dict[str, float], progress: Progress | None) -> tuple[Any, bool, Path | None]:
+    """Step 1, registration (§4), with its checkpoint ``out/registration.npz``: reused when its
+    key (input + step-1 parameters) matches and ``resume``, else computed and written. Returns
+    the registration, whether it was reused, and the checkpoint's path (``None`` without
+    ``out``). Its seconds go to ``timings["registration"]``."""
+    from . import registration as reg_mod
+
     t0 = time.perf_counter()
     reg = None
     ckpt = None if out is None else out / "registration.npz"
@@ -137,88 +175,91 @@ def extract(
             log.warning("ignoring registration checkpoint %s: %s", ckpt, exc)
     reused = reg is not None
     if reg is None:
-        reg = reg_mod.register_sequence(seq, config.registration, progress=report("registration"))
+        reg = reg_mod.register_sequence(seq, config.registration,
+                                        progress=_report(progress, "registration"))
         if ckpt is not None:
             reg.save(ckpt)
     timings["registration"] = time.perf_counter() - t0
-    result = ExtractResult(None, reg, timings=timings, reused_registration=reused,
-                           sparse_removed=removed, frames=list(seq.frames))
-    if ckpt is not None:
-        result.files["registration"] = ckpt
-    if stop_after == "registration":
-        return result
+    return reg, reused, ckpt
 
-    # ---- step 2: skeletal structure ------------------------------------------------------
+
+def _step2(rest_points: np.ndarray, points: np.ndarray, config: PipelineConfig,
+           timings: dict[str, float], progress: Progress | None, detail: str) -> Any:
+    """Step 2, skeletal structure (§5), on the rest points ``(M, 3)`` and their registered
+    positions ``(F, M, 3)`` (metres); its seconds are added to ``timings["structure"]`` and
+    the bone count reported with ``detail``."""
+    from . import structure as struct_mod
+
     t0 = time.perf_counter()
-    st = struct_mod.extract_structure(reg.rest_points, reg.points, config.structure)
-    timings["structure"] = time.perf_counter() - t0
-    result.structure = st
+    st = struct_mod.extract_structure(rest_points, points, config.structure)
+    timings["structure"] = timings.get("structure", 0.0) + time.perf_counter() - t0
     if progress:
-        progress("structure", 1, 1, f"{len(st.bone_parent)} bones")
-    if stop_after == "structure":
-        weights = np.eye(len(st.bone_parent))[st.labels]
-        labels, joints_rest, R, T = st.labels, st.joints_rest, st.R, st.T
-    else:
-        # ---- step 3: joint learning ------------------------------------------------------
-        rest_index = reg.params.get("rest_frame_index") if reg.params else None
+        progress("structure", 1, 1, f"{len(st.bone_parent)} {detail}")
+    return st
 
-        def step3(r: Any, structure: Any) -> Any:
-            t0 = time.perf_counter()
-            out3 = joints_mod.learn_joints(
-                seq.frames, r.rest_points, r.points, structure, config.joints,
-                progress=report("joints"), rest_index=None if rest_index is None
-                else int(rest_index), track_progress=report("tracking"))
-            timings["joints"] = timings.get("joints", 0.0) + time.perf_counter() - t0
-            return out3
 
-        jr = step3(reg, st)
-        # ---- refinement from the skeleton (RegistrationConfig.refine_rounds) -------------
-        for rnd in range(config.registration.refine_rounds):
-            t0 = time.perf_counter()
-            posed = joints_mod.posed_rest_points(reg.rest_points, st.labels, jr.R, jr.T)
-            refined = reg_mod.refine_registration(seq, reg, posed, config.registration,
-                                                  progress=report(f"refinement {rnd + 1}"))
-            timings["refinement"] = timings.get("refinement", 0.0) + time.perf_counter() - t0
-            t0 = time.perf_counter()
-            st = struct_mod.extract_structure(refined.rest_points, refined.points,
-                                              config.structure)
-            timings["structure"] += time.perf_counter() - t0
-            if progress:
-                progress("structure", 1, 1, f"{len(st.bone_parent)} bones (refined)")
-            jr = step3(refined, st)
-            result.structure = st
-            result.refined_registration = refined
-        result.joints = jr
-        weights, labels = jr.weights, np.argmax(jr.weights, axis=1)
-        joints_rest, R, T = jr.joints_rest, jr.R, jr.T
-    final = result.refined_registration or reg
-    skel = output_skeleton(reg.rest_points, labels, st.bone_parent, joints_rest, R, T, weights,
-                           config, st.view_camera,
-                           observed=(seq.frames, final.points) if stop_after == "joints"
-                           else None, timings=timings)
-    result.skeleton = skel
+def _step3_with_refinement(seq: PointSequence, reg: Any, st: Any, config: PipelineConfig,
+                           timings: dict[str, float], progress: Progress | None
+                           ) -> tuple[Any, Any, Any]:
+    """Step 3, joint learning (§6), then ``[registration] refine_rounds`` rounds of
+    refinement from the skeleton: re-register with the posed rest points
+    (:func:`pointrig.registration.refine_registration`), redo step 2 and step 3 on it.
+    Returns the last structure, joints result and refined registration (``None`` without
+    rounds); seconds go to ``timings["joints"]``, ``["refinement"]`` and ``["structure"]``."""
+    from . import joints as joints_mod
+    from . import registration as reg_mod
 
-    if out is not None:
-        source = {"input": str(seq.source), "format": seq.fmt, "frames": len(seq),
-                  "points_per_frame": n_input,
-                  "points_used_per_frame": [int(c) for c in seq.counts],
-                  "rest_frame": int((reg.params or {}).get("rest_frame_index", -1)),
-                  "stopped_after": stop_after, **seq.meta}
-        params = config.to_dict()
-        params["timings_s"] = {k: round(v, 3) for k, v in timings.items()}
-        skel.save_json(out / "skeleton.json", source=source, params=params)
-        skel.save_weights(out / "weights.npz")
-        write_bvh(out / "skeleton.bvh", skel)
-        write_gltf(out / "skeleton.glb", skel)
-        result.files["skeleton"] = out / "skeleton.json"
-        result.files["weights"] = out / "weights.npz"
-        result.files["bvh"] = out / "skeleton.bvh"
-        result.files["gltf"] = out / "skeleton.glb"
-        if pictures:
-            _write_pictures(out, seq, result.refined_registration or reg, skel)
-            result.files["png"] = out / "skeleton.png"
-            result.files["gif"] = out / "skeleton.gif"
-    return result
+    rest_index = reg.params.get("rest_frame_index") if reg.params else None
+
+    def step3(r: Any, structure: Any) -> Any:
+        t0 = time.perf_counter()
+        out3 = joints_mod.learn_joints(
+            seq.frames, r.rest_points, r.points, structure, config.joints,
+            progress=_report(progress, "joints"), rest_index=None if rest_index is None
+            else int(rest_index), track_progress=_report(progress, "tracking"))
+        timings["joints"] = timings.get("joints", 0.0) + time.perf_counter() - t0
+        return out3
+
+    jr = step3(reg, st)
+    refined = None
+    for rnd in range(config.registration.refine_rounds):
+        t0 = time.perf_counter()
+        posed = joints_mod.posed_rest_points(reg.rest_points, st.labels, jr.R, jr.T)
+        refined = reg_mod.refine_registration(seq, reg, posed, config.registration,
+                                              progress=_report(progress, f"refinement {rnd + 1}"))
+        timings["refinement"] = timings.get("refinement", 0.0) + time.perf_counter() - t0
+        st = _step2(refined.rest_points, refined.points, config, timings, progress,
+                    "bones (refined)")
+        jr = step3(refined, st)
+    return st, jr, refined
+
+
+def _write_outputs(out: Path, seq: PointSequence, reg: Any, result: ExtractResult,
+                   config: PipelineConfig, stop_after: StopAfter, n_input: list[int],
+                   pictures: bool) -> None:
+    """Write ``result.skeleton`` into ``out``: ``skeleton.json`` (with the input's description
+    and every parameter), ``weights.npz``, ``skeleton.bvh``, ``skeleton.glb`` and, with
+    ``pictures``, ``skeleton.png`` and ``skeleton.gif``; the paths go to ``result.files``."""
+    skel = result.skeleton
+    source = {"input": str(seq.source), "format": seq.fmt, "frames": len(seq),
+              "points_per_frame": n_input,
+              "points_used_per_frame": [int(c) for c in seq.counts],
+              "rest_frame": int((reg.params or {}).get("rest_frame_index", -1)),
+              "stopped_after": stop_after, **seq.meta}
+    params = config.to_dict()
+    params["timings_s"] = {k: round(v, 3) for k, v in result.timings.items()}
+    skel.save_json(out / "skeleton.json", source=source, params=params)
+    skel.save_weights(out / "weights.npz")
+    write_bvh(out / "skeleton.bvh", skel)
+    write_gltf(out / "skeleton.glb", skel)
+    result.files["skeleton"] = out / "skeleton.json"
+    result.files["weights"] = out / "weights.npz"
+    result.files["bvh"] = out / "skeleton.bvh"
+    result.files["gltf"] = out / "skeleton.glb"
+    if pictures:
+        _write_pictures(out, seq, result.refined_registration or reg, skel)
+        result.files["png"] = out / "skeleton.png"
+        result.files["gif"] = out / "skeleton.gif"
 
 
 def _write_pictures(out: Path, seq: PointSequence, reg: Any, skel: Skeleton) -> None:
