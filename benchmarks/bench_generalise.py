@@ -11,10 +11,10 @@ the pipeline took (wall; the CSV also has the CPU seconds of its process, all th
 means per set, and per set and group (human-sized, animal, other) and
 category::
 
-    PYTHONPATH=python python benchmarks/bench_generalise.py                 # both sets
-    PYTHONPATH=python python benchmarks/bench_generalise.py --set tuning '{}' \\
+    python -m benchmarks.bench_generalise                 # both sets
+    python -m benchmarks.bench_generalise --set tuning '{}' \\
         '{"structure": {"max_joints": 15}}' --jobs 2 --csv runs.csv
-    PYTHONPATH=python python benchmarks/bench_generalise.py paper --only robot_0,cmu_60
+    python -m benchmarks.bench_generalise paper --only robot_0,cmu_60
 
 Synthesized sequences are cached in ``--cache`` (default ``~/.cache/pointrig-corpus``, outside
 the tree; points rounded to float32 on the first run so every variant and re-run sees the
@@ -45,17 +45,13 @@ from typing import Any
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-import corpus  # noqa: E402
-
-import pointrig  # noqa: E402
-from pointrig.config import PipelineConfig, RegistrationConfig, apply_overrides  # noqa: E402
-from pointrig.errors import PointrigError  # noqa: E402
-from pointrig.evaluate import evaluate, scorable_joints, subject_size  # noqa: E402
-from pointrig.pipeline import extract  # noqa: E402
-from pointrig.sequence import PointSequence  # noqa: E402
+import pointrig
+from benchmarks import corpus
+from pointrig.config import PipelineConfig, RegistrationConfig, apply_overrides
+from pointrig.errors import PointrigError
+from pointrig.evaluate import evaluate, scorable_joints, subject_size
+from pointrig.pipeline import extract
+from pointrig.sequence import PointSequence
 
 DEFAULT_CACHE = Path.home() / ".cache" / "pointrig-corpus"
 #: Columns of the CSV, one row per run.

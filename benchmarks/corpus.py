@@ -36,8 +36,8 @@ in :data:`UNUSED` (members of no subject: the time budget).
 
 Usage::
 
-    PYTHONPATH=python python benchmarks/corpus.py            # the table of both sets
-    PYTHONPATH=python python benchmarks/corpus.py --check    # load every take, clip motion
+    python -m benchmarks.corpus            # the table of both sets
+    python -m benchmarks.corpus --check    # load every take, clip motion
 """
 
 from __future__ import annotations
@@ -53,9 +53,7 @@ from typing import Any
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
-
-from pointrig.synth import FIGURES, Camera, NoiseConfig, synthesize  # noqa: E402
+from pointrig.synth import FIGURES, Camera, NoiseConfig, synthesize
 
 #: A take without a distance is seen from this many times its subject's size (a 1.9 m human
 #: from 3.0 m: about 10k points a frame at 640x480), at least MIN_DISTANCE metres.
