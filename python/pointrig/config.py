@@ -338,7 +338,7 @@ class StructureConfig:
     ensemble_radius: float = 0.03  # cap of a joint's distance between runs, x size
     kmeans_iterations: int = 30  # Lloyd iterations of the k-means
     # weight of the displacement trajectories against the rest positions in the k-means
-    # features (pointrig.structure.kmeans_features; 0 = rest positions only)
+    # features (pointrig.clustering.kmeans_features; 0 = rest positions only)
     trajectory_weight: float = 1.0
     kmeans_frames: int = 20  # frames (evenly spaced) whose displacements enter the features
     vote_neighbors: int = 10  # rest-pose neighbours: the ball of (iii), the candidates of (ii)
