@@ -47,7 +47,7 @@ PATCHED = FUNCTIONS
 
 
 def chamfer_full_search(template: np.ndarray, data: np.ndarray, trunc: float) -> float:
-    """Reference form of :func:`pointrig.preprocess.chamfer_misfit` (metres) between
+    """Reference form of :func:`pointrig.geometry.chamfer_misfit` (metres) between
     ``template (M, 3)`` and ``data (N, 3)``: scipy k-d trees, every nearest-neighbour search
     run to the end and the distances capped at ``trunc`` afterwards."""
     tree = cKDTree(data)
@@ -57,7 +57,7 @@ def chamfer_full_search(template: np.ndarray, data: np.ndarray, trunc: float) ->
 
 
 def fps_numpy(points: np.ndarray, n: int, seed: int = 0) -> np.ndarray:
-    """Reference form of :func:`pointrig.preprocess.farthest_point_sampling`, a numpy loop:
+    """Reference form of :func:`pointrig.geometry.farthest_point_sampling`, a numpy loop:
     ``(min(n, m),)`` indices of ``points (m, 3)``."""
     m = len(points)
     if n >= m:
@@ -72,7 +72,7 @@ def fps_numpy(points: np.ndarray, n: int, seed: int = 0) -> np.ndarray:
 
 
 def remove_sparse_kd(points: np.ndarray, k: int = 10, ratio: float = 4.0) -> np.ndarray:
-    """Reference form of :func:`pointrig.preprocess.remove_sparse_points` on a scipy k-d
+    """Reference form of :func:`pointrig.geometry.remove_sparse_points` on a scipy k-d
     tree: the points of ``(N, 3)`` whose ``k``-th neighbour is within ``ratio`` medians."""
     if ratio <= 0 or len(points) <= k + 1:
         return points.copy()
@@ -81,7 +81,7 @@ def remove_sparse_kd(points: np.ndarray, k: int = 10, ratio: float = 4.0) -> np.
 
 
 def nearest_kd(queries: np.ndarray, points: np.ndarray, cap: float | None = None) -> np.ndarray:
-    """:func:`pointrig.preprocess.nearest_distances` on a scipy k-d tree, ``(n,)`` metres."""
+    """:func:`pointrig.geometry.nearest_distances` on a scipy k-d tree, ``(n,)`` metres."""
     d = cKDTree(points).query(queries)[0]
     return d if cap is None else np.minimum(d, cap)
 
