@@ -4,8 +4,8 @@ Nearest-neighbour distances and spacings, the truncated chamfer misfit that scor
 registration against the observed frames (§4), normals, farthest-point sampling and the
 moving-least-squares projection that make the rest-pose point set surface (§4, last
 paragraph), ``k``-nearest-neighbour graphs (geodesic distances), connected pieces, the
-statistical and sparse-point outlier filters of the input clean-up (§3), the surface cover
-that picks a rest frame, and the absolute-orientation (Kabsch) fit of one part (Eq. 14).
+statistical and sparse-point outlier filters of the input clean-up (§3), and the surface cover
+that picks a rest frame.
 The heavy kernels run in the Rust core (``_core``).
 """
 
@@ -27,7 +27,6 @@ __all__ = [
     "connected_pieces_exact",
     "estimate_normals",
     "farthest_point_sampling",
-    "kabsch",
     "knn_graph",
     "mean_spacing",
     "median_spacing",
@@ -359,12 +358,3 @@ def knn_graph(points: np.ndarray, k: int = 8, cap: float | None = None) -> csr_m
 def _nn_distances(points: np.ndarray) -> np.ndarray:
     """Distance of each of ``points (N, 3)`` to its nearest other point, ``(N,)`` metres."""
     return cKDTree(points).query(points, k=2)[0][:, 1]
-
-
-def kabsch(P: np.ndarray, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(R (3, 3), t (3,))`` minimising ``sum |R p + t - q|^2`` over rows of ``P, Q (n, 3)``."""
-    cp, cq = P.mean(axis=0), Q.mean(axis=0)
-    U, _, Vt = np.linalg.svd((P - cp).T @ (Q - cq))
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-    Rm = Vt.T @ D @ U.T
-    return Rm, cq - Rm @ cp

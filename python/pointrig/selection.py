@@ -30,7 +30,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .geometry import kabsch, nearest_distances
+from ._core import cluster_fit
+from .geometry import nearest_distances
 
 __all__ = ["JointSelection", "select_joints"]
 
@@ -131,21 +132,26 @@ def select_joints(frames: Sequence[np.ndarray], rest_points: np.ndarray, labels:
     d2 = [np.minimum(x, cap2) for x in d2]
     sigma2 = float(np.mean(np.concatenate(d2)))
 
-    def merged_motion(g: np.ndarray, t: int) -> tuple[np.ndarray, np.ndarray]:
-        return kabsch(Q[g], _posed(Q[g], labels[g], R[t], T[t]))
+    def merged_motion(g: np.ndarray, frames_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(len(frames_t), 3, 3)``, ``(len(frames_t), 3)``: the least-squares rigid motion
+        (Eq. 14, Rust) of the posed points of ``g`` in the frames ``frames_t``."""
+        Qg, lg = np.ascontiguousarray(Q[g]), labels[g]
+        posed = np.einsum("fmij,mj->fmi", R[frames_t][:, lg], Qg) + T[frames_t][:, lg]
+        Rm, Tm, _ = cluster_fit(Qg, np.ascontiguousarray(posed), np.zeros(len(Qg), np.int64), 1)
+        return Rm[:, 0], Tm[:, 0]
 
     def evidence(b: int) -> float:
         p = parent[b]
         g = (labels == b) | (labels == p)
         dsse = 0.0
         n_pair = 0
-        for i, t in enumerate(fidx):
+        Rm_all, Tm_all = merged_motion(g, fidx)
+        for i in range(len(fidx)):
             sel = (near[i] == b) | (near[i] == p)
             n_pair += int(sel.sum())
             if not sel.any():
                 continue
-            Rm, tm = merged_motion(g, t)
-            dm = nearest_distances(X[i][sel], Q[g] @ Rm.T + tm, cap)
+            dm = nearest_distances(X[i][sel], Q[g] @ Rm_all[i].T + Tm_all[i], cap)
             dsse += float(np.sum(dm * dm) - np.sum(d2[i][sel]))
         nf = len(fidx)
         pen = penalty_scale * (3 * nf * np.log(max(n_pair / nf, 2.0))
@@ -169,8 +175,7 @@ def select_joints(frames: Sequence[np.ndarray], rest_points: np.ndarray, labels:
         p = int(parent[b])
         removed.append((b, p, ev))
         g = (labels == b) | (labels == p)
-        for t in range(F):
-            R[t, p], T[t, p] = merged_motion(g, t)
+        R[:, p], T[:, p] = merged_motion(g, np.arange(F))
         labels[labels == b] = p
         parent[parent == b] = p
         alive.remove(b)
