@@ -13,6 +13,16 @@ def _pad4(b: bytes, fill: bytes = b"\x00") -> bytes:
     return b + fill * ((4 - len(b) % 4) % 4)
 
 
+def _write_glb(path: str | Path, doc: dict, body: bytes) -> None:
+    """A GLB container (JSON chunk, then the binary chunk) of ``doc`` and ``body``."""
+    js = _pad4(json.dumps(doc).encode(), b" ")
+    total = 12 + 8 + len(js) + 8 + len(body)
+    out = struct.pack("<4sII", b"glTF", 2, total)
+    out += struct.pack("<II", len(js), 0x4E4F534A) + js
+    out += struct.pack("<II", len(body), 0x004E4942) + body
+    Path(path).write_bytes(out)
+
+
 def write_two_bone_glb(path: Path, angle_deg: float = 90.0, interpolation: str = "LINEAR",
                        duration: float = 1.0) -> dict:
     """A vertical two-bone strip: joint 0 at the origin, joint 1 at (0, 1, 0); the strip spans
@@ -83,12 +93,7 @@ def write_two_bone_glb(path: Path, angle_deg: float = 90.0, interpolation: str =
         "bufferViews": views,
         "buffers": [{"byteLength": len(body)}],
     }
-    js = _pad4(json.dumps(doc).encode(), b" ")
-    total = 12 + 8 + len(js) + 8 + len(body)
-    out = struct.pack("<4sII", b"glTF", 2, total)
-    out += struct.pack("<II", len(js), 0x4E4F534A) + js
-    out += struct.pack("<II", len(body), 0x004E4942) + body
-    Path(path).write_bytes(out)
+    _write_glb(path, doc, body)
     return {"verts": verts.astype(np.float64), "tris": tris.astype(np.int64),
             "upper": verts[:, 1] > 1.0}
 
@@ -180,11 +185,6 @@ def write_split_two_bone_glb(path: Path, mode: str, angle_deg: float = 90.0) -> 
         "bufferViews": views,
         "buffers": [{"byteLength": len(body)}],
     }
-    js = _pad4(json.dumps(doc).encode(), b" ")
-    total = 12 + 8 + len(js) + 8 + len(body)
-    out = struct.pack("<4sII", b"glTF", 2, total)
-    out += struct.pack("<II", len(js), 0x4E4F534A) + js
-    out += struct.pack("<II", len(body), 0x004E4942) + body
-    Path(path).write_bytes(out)
+    _write_glb(path, doc, body)
     verts = np.concatenate([lower, upper]).astype(np.float64)
     return {"verts": verts, "upper": verts[:, 1] > 1.0}
