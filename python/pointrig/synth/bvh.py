@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import FormatError, InputError
-from .figures import _BoneSpec, _primitive_mesh, _smoothstep, rodrigues
+from .figures import _BoneSpec, _primitive_mesh, _smoothstep, area_samples, rodrigues
 
 __all__ = ["Bvh", "CapsuleBody", "capsule_body", "load_bvh", "parse_bvh", "pose_bvh"]
 
@@ -424,14 +424,8 @@ def pose_bvh(path: str | Path, n_frames: int, fps: float = 30.0, speed: float = 
     joints = np.einsum("fij,fbj->fbi", Rp, Pg) + tp[:, None]
     verts = skin(body.vertices, body.weights, R, T)
     # area-uniform surface samples on the rest body, those buried in another capsule dropped
-    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 11]))
-    tv = body.vertices[body.triangles]
-    area = 0.5 * np.linalg.norm(np.cross(tv[:, 1] - tv[:, 0], tv[:, 2] - tv[:, 0]), axis=1)
-    tri = rng.choice(len(area), size=int(surface_points * 1.6) + 16, p=area / area.sum())
-    r1, r2 = rng.random(len(tri)), rng.random(len(tri))
-    s = np.sqrt(r1)
-    bary = np.stack([1 - s, s * (1 - r2), s * r2], axis=1)
-    pts = np.einsum("sk,ski->si", bary, tv[tri])
+    tri, bary, pts = area_samples(body.vertices, body.triangles, int(surface_points * 1.6) + 16,
+                                  seed)
     seg = body.vertex_segment[body.triangles[tri, 0]]
     H = float(np.ptp(body.vertices[:, 1]))
     keep = np.nonzero(~body.inside(pts, seg, 1e-3 * H))[0][:surface_points]

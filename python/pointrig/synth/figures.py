@@ -84,6 +84,21 @@ def _bone_frame(head: np.ndarray, tail: np.ndarray) -> np.ndarray:
     return np.stack([x, y, z], axis=1)
 
 
+def area_samples(vertices: np.ndarray, triangles: np.ndarray, n: int, seed: int
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``n`` points uniform in area on the mesh ``vertices (V, 3)``, ``triangles (T, 3)``:
+    triangle indices ``(n,)``, barycentric coordinates ``(n, 3)`` and positions ``(n, 3)``
+    (metres), from the stream ``SeedSequence([seed, 11])``."""
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 11]))
+    v = vertices[triangles]
+    area = 0.5 * np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1)
+    tri = rng.choice(len(area), size=n, p=area / area.sum())
+    r1, r2 = rng.random(len(tri)), rng.random(len(tri))
+    s = np.sqrt(r1)
+    bary = np.stack([1 - s, s * (1 - r2), s * r2], axis=1)
+    return tri, bary, np.einsum("sk,ski->si", bary, v[tri])
+
+
 def _smoothstep(s: np.ndarray) -> np.ndarray:
     s = np.clip(s, 0.0, 1.0)
     return s * s * (3 - 2 * s)
@@ -264,14 +279,7 @@ class Figure:
         rest positions ``(S, 3)``. Samples buried inside another primitive are dropped, so
         ``S <= n``.
         """
-        rng = np.random.default_rng(np.random.SeedSequence([int(seed), 11]))
-        v = self.vertices[self.triangles]
-        area = 0.5 * np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1)
-        tri = rng.choice(len(area), size=int(n * 1.6) + 16, p=area / area.sum())
-        r1, r2 = rng.random(len(tri)), rng.random(len(tri))
-        s = np.sqrt(r1)
-        bary = np.stack([1 - s, s * (1 - r2), s * r2], axis=1)
-        pts = np.einsum("sk,ski->si", bary, v[tri])
+        tri, bary, pts = area_samples(self.vertices, self.triangles, int(n * 1.6) + 16, seed)
         owner = self.vertex_bone[self.triangles[tri, 0]]
         keep = np.ones(len(tri), dtype=bool)
         for b in range(self.n_bones):
