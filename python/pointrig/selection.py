@@ -179,11 +179,11 @@ def select_joints(frames: Sequence[np.ndarray], rest_points: np.ndarray, labels:
         labels[labels == b] = p
         parent[parent == b] = p
         alive.remove(b)
+        Qp = Q[labels == p]
         for i, t in enumerate(fidx):
             near[i][near[i] == b] = p
             sel = near[i] == p
-            d2[i][sel] = nearest_distances(X[i][sel], _posed(Q[labels == p], labels[labels == p],
-                                                             R[t], T[t]), cap) ** 2
+            d2[i][sel] = nearest_distances(X[i][sel], Qp @ R[t, p].T + T[t, p], cap) ** 2
         cache = {k: v for k, v in cache.items() if p not in k and b not in k}
     keep = np.array(alive, dtype=np.int64)
     index = -np.ones(B, dtype=np.int64)
