@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Set up the development environment, idempotently (a second run only rebuilds what changed):
-#   .venv (Python 3.11) with the Python dependencies (pyproject.toml's runtime and dev lists at
-#   the versions of constraints.txt), then the Rust extension, built with the release profile
+#   .venv (Python 3.11) with the Python dependencies (pyproject.toml's runtime, dev and capture
+#   lists at the versions of constraints.txt), then the Rust extension, built with the release profile
 #   (the one `make test-rust` tests with, so the dependencies compile once) and pointrig
 #   installed editable, with its `pointrig` command in .venv/bin.
 #
@@ -42,7 +42,8 @@ with open("pyproject.toml", "rb") as fh:
     doc = tomllib.load(fh)
 project = doc["project"]
 print("\n".join(doc["build-system"]["requires"] + project["dependencies"]
-                + project["optional-dependencies"]["dev"]))
+                + project["optional-dependencies"]["dev"]
+                + project["optional-dependencies"]["capture"]))
 PYEOF
 )
 want=$(printf '%s\n' "$reqs" | cat - constraints.txt | sha256sum | cut -c1-16)

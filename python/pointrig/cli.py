@@ -32,8 +32,30 @@ def _floats3(text: str) -> tuple[float, float, float]:
     return vals  # type: ignore[return-value]
 
 
+def _ints4(text: str) -> tuple[int, int, int, int]:
+    try:
+        vals = tuple(int(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected U0,V0,U1,V1 whole pixels, got {text!r}") \
+            from None
+    if len(vals) != 4:
+        raise argparse.ArgumentTypeError(f"expected 4 comma-separated pixels, got {text!r}")
+    return vals  # type: ignore[return-value]
+
+
 def _add_input_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("input", help="a folder of frames (ply/pcd/xyz/txt/npy/depth png) or an .npz")
+    p.add_argument("input", help="a recording (Azure Kinect/Orbbec .mkv, RealSense .bag, ROS 2 "
+                   "bag, Record3D .r3d, Stray Scanner folder), a folder of frames "
+                   "(ply/pcd/xyz/txt/npy/depth png) or an .npz (docs/inputs.md)")
+    p.add_argument("--topic", default=None,
+                   help="ROS bags: the depth image or PointCloud2 topic to read")
+    p.add_argument("--near", type=float, default=None, metavar="M",
+                   help="drop depth nearer than M metres (camera z)")
+    p.add_argument("--far", type=float, default=None, metavar="M",
+                   help="drop depth farther than M metres (camera z): the room behind a subject")
+    p.add_argument("--crop", type=_ints4, default=None, metavar="U0,V0,U1,V1",
+                   help="keep this pixel box of the depth images (columns U0..U1-1, rows "
+                   "V0..V1-1; pick it on `pointrig preview`)")
     p.add_argument("--start", type=int, default=0, help="first frame (default 0)")
     p.add_argument("--stop", type=int, default=None, help="stop before this frame")
     p.add_argument("--stride", type=int, default=1,
@@ -52,25 +74,55 @@ def _add_input_options(p: argparse.ArgumentParser) -> None:
                    "camera_intrinsic.json in the folder or its parent)")
 
 
-def _read_input(args: argparse.Namespace):
+def _isolation(args: argparse.Namespace):
+    from .io.depthcam import Isolation
+
+    return Isolation(near=args.near, far=args.far, crop=args.crop)
+
+
+def _read_input(args: argparse.Namespace, min_frames: int = 2):
     from .io import read_sequence
 
     return read_sequence(
         args.input, start=args.start, stop=args.stop, stride=args.stride,
         crop_min=args.crop_min, crop_max=args.crop_max, voxel_size=args.voxel,
-        intrinsics=args.intrinsics, scale=args.scale,
+        intrinsics=args.intrinsics, scale=args.scale, min_frames=min_frames,
+        topic=args.topic, isolation=_isolation(args),
     )
+
+
+def _print_recording(s: dict) -> None:
+    """The recording's own description (device, image, rate, calibration, time), if any."""
+    if "device" in s:
+        print(f"device   {s['device']}")
+    if "resolution" in s:
+        fps = f", {s['fps']:g} fps" if s.get("fps") else ""
+        print(f"depth    {s['resolution'][0]} x {s['resolution'][1]} px{fps}"
+              + (f", mode {s['depth_mode']}" if s.get("depth_mode") else ""))
+    if "frames_in_file" in s:
+        dur = s.get("duration_s")
+        print(f"file     {s['frames_in_file']} depth frames"
+              + (f", {dur:.3f} s" if dur is not None else ""))
+    if "topic" in s:
+        print(f"topic    {s['topic']} ({s.get('message_type', '')})")
+    if "isolation" in s:
+        iso = s["isolation"]
+        parts = [f"{k} {iso[k]:g} m" for k in ("near", "far") if iso[k] is not None]
+        if iso["crop"] is not None:
+            parts.append("crop " + ",".join(str(c) for c in iso["crop"]) + " px")
+        print(f"kept     {', '.join(parts)}")
 
 
 def cmd_info(args: argparse.Namespace) -> int:
     """Print a sequence summary."""
-    seq = _read_input(args)
+    seq = _read_input(args, min_frames=1)
     s = seq.summary()
     if args.json:
         print(json.dumps(s, indent=1))
         return 0
     print(f"source   {s['source']}")
     print(f"format   {s['format']}")
+    _print_recording(s)
     print(f"frames   {s['frames']}")
     print(f"points   min {s['points_min']}  median {s['points_median']}  max {s['points_max']}")
     lo = ", ".join(f"{v:.3f}" for v in s["bounds_min"])
@@ -78,8 +130,11 @@ def cmd_info(args: argparse.Namespace) -> int:
     print(f"bounds   [{lo}] .. [{hi}] m")
     if "intrinsics" in s:
         k = s["intrinsics"]
-        print(f"camera   fx {k['fx']:g} fy {k['fy']:g} cx {k['cx']:g} cy {k['cy']:g} px, "
-              f"depth unit {k['depth_scale']:g} m ({k['path'] or 'given'})")
+        unit = k.get("depth_scale", s.get("depth_unit_m"))
+        where = k["source"] if "source" in k else (k.get("path") or "given")
+        model = f", {k['model']}" if k.get("model", "pinhole") != "pinhole" else ""
+        print(f"camera   fx {k['fx']:g} fy {k['fy']:g} cx {k['cx']:g} cy {k['cy']:g} px{model}, "
+              + (f"depth unit {unit:g} m " if unit else "") + f"({where})")
     try:
         check_units(seq, PreprocessConfig().max_extent)
     except InputError as exc:  # info only describes; extract refuses such input
@@ -152,6 +207,7 @@ def _read_configured(args: argparse.Namespace, cfg):
         args.input, start=pre.frame_start, stop=pre.frame_stop, stride=pre.frame_stride,
         crop_min=pre.crop_min, crop_max=pre.crop_max, voxel_size=pre.voxel_size,
         intrinsics=args.intrinsics, scale=args.scale, min_points=pre.min_points,
+        topic=args.topic, isolation=_isolation(args),
     )
     # before the background search, whose thresholds are metres too (extract checks the
     # sequence it is given again: the Python API reaches it without this function)

@@ -15,6 +15,8 @@ import numpy as np
 
 from ..errors import EmptyFrameError, FormatError, InputError
 from ..sequence import PointSequence
+from .depthcam import Isolation
+from .recordings import RECORDING_FORMATS, detect_recording, isolate_points, read_recording
 
 __all__ = ["FRAME_FORMATS", "detect_format", "read_frame", "read_sequence", "natural_key",
            "read_intrinsics", "find_intrinsics", "INTRINSICS_NAMES", "depth_to_points",
@@ -460,6 +462,9 @@ def detect_format(path: str | Path) -> str:
     p = Path(path)
     if not p.exists():
         raise InputError("path not found", p)
+    recording = detect_recording(p)  # by content: pointrig.io.recordings
+    if recording is not None:
+        return recording
     if p.is_file():
         if p.suffix.lower() == ".npz":
             return "npz"
@@ -525,6 +530,8 @@ def read_sequence(
     scale: float = 1.0,
     min_points: int = 1,
     min_frames: int = 2,
+    topic: str | None = None,
+    isolation: Isolation | None = None,
 ) -> PointSequence:
     """Read a point-cloud sequence.
 
@@ -549,6 +556,11 @@ def read_sequence(
         Frames with fewer points (after crop/downsampling) raise :class:`EmptyFrameError`.
     min_frames
         Fewer frames raise :class:`InputError` (the method needs motion).
+    topic
+        For ROS bags, the topic read (:func:`pointrig.io.recordings.read_recording`).
+    isolation
+        Depth range (``z``, metres) and pixel box of depth images kept
+        (:class:`pointrig.io.depthcam.Isolation`).
 
     Returns
     -------
@@ -560,7 +572,13 @@ def read_sequence(
     meta: dict[str, Any] = {}  # PointSequence.meta: what the reader used
     if stride < 1:
         raise InputError(f"stride must be >= 1, got {stride}", p)
-    if fmt == "npz":
+    if fmt in RECORDING_FORMATS:
+        rec = read_recording(p, fmt, start=start, stop=stop, stride=stride, topic=topic,
+                             isolation=isolation, intrinsics=None if intrinsics is None else
+                             (intrinsics if isinstance(intrinsics, dict)
+                              else read_intrinsics(intrinsics)))
+        frames, names, meta = rec.frames, rec.names, rec.meta
+    elif fmt == "npz":
         frames, names = _read_npz(p)
         idx = list(range(len(frames)))[start:stop:stride]
         frames = [frames[i] for i in idx]
@@ -581,6 +599,8 @@ def read_sequence(
                                   **{k: float(v) for k, v in intr.items()}}
         frames = [read_frame(f, intr) for f in files]
         names = [f.name for f in files]
+    if isolation is not None and isolation.active:
+        meta["isolation"] = isolation.to_dict()
     if len(frames) < min_frames:
         raise InputError(f"sequence has {len(frames)} frame(s) after frame selection; "
                          f"at least {min_frames} are needed", p)
@@ -594,6 +614,8 @@ def read_sequence(
             raise InputError(f"{int(bad.sum())} point(s) with NaN/inf coordinates "
                              f"(first at row {int(np.argmax(bad))})", p / name if
                              p.is_dir() else p, frame=i)
+        if isolation is not None and isolation.active and fmt not in RECORDING_FORMATS:
+            pts = isolate_points(pts, fmt, meta, isolation, p)
         if lo is not None:
             pts = pts[(pts >= lo).all(axis=1)]
         if hi is not None:

@@ -1,0 +1,113 @@
+"""Recordings as depth cameras and their apps write them, recognised by their content.
+
+=============  ==========================================================  ==================
+format         what                                                        recognised by
+=============  ==========================================================  ==================
+``mkv``        Azure Kinect / Orbbec Femto recording (:mod:`.mkv`)         EBML magic bytes
+=============  ==========================================================  ==================
+
+Each reader returns a :class:`~pointrig.io.depthcam.Recording`: points in metres in the
+camera frame, and a description (device, resolution, frame rate, intrinsics and where they came
+from, frame times) that ``pointrig info`` prints and ``skeleton.json`` records as ``source``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import ConfigError
+from .depthcam import Isolation, Recording
+from .mkv import MATROSKA_MAGIC
+
+__all__ = ["RECORDING_FORMATS", "detect_recording", "read_recording", "isolate_points"]
+
+#: the recording formats, by the name :func:`detect_recording` gives them
+RECORDING_FORMATS = ("mkv",)
+
+
+def detect_recording(path: str | Path) -> str | None:
+    """The recording format of ``path`` from its content, or ``None`` when it is none of
+    :data:`RECORDING_FORMATS` (a folder of frames, an ``.npz``, ...)."""
+    p = Path(path)
+    if p.is_file():
+        with open(p, "rb") as fh:
+            head = fh.read(16)
+        if head.startswith(MATROSKA_MAGIC):
+            return "mkv"
+    return None
+
+
+def read_recording(path: str | Path, fmt: str, *, start: int = 0, stop: int | None = None,
+                   stride: int = 1, intrinsics: dict[str, float] | None = None,
+                   topic: str | None = None, isolation: Isolation | None = None,
+                   keep_depth: bool = False) -> Recording:
+    """Read a recording of format ``fmt`` (:func:`detect_recording`).
+
+    Parameters
+    ----------
+    path
+        The recording.
+    start, stop, stride
+        Frames used (a slice of the recording's depth frames).
+    intrinsics
+        Pinhole ``fx, fy, cx, cy`` (pixels) to use instead of the recording's own.
+    topic
+        For bags: the topic read (default: the only depth image or point cloud topic).
+    isolation
+        Depth range and pixel box kept.
+    keep_depth
+        Also keep the depth images (for the preview).
+
+    Returns
+    -------
+    Recording
+        Points ``(N_t, 3)`` metres, camera frame, and the recording's description.
+    """
+    p = Path(path)
+    if topic is not None and fmt not in ("rosbag1", "rosbag2"):
+        raise ConfigError(f"--topic is for ROS bags; {p} is a {fmt} recording")
+    if fmt == "mkv":
+        from .mkv import read_mkv
+
+        return read_mkv(p, start=start, stop=stop, stride=stride, intrinsics=intrinsics,
+                        isolation=isolation, keep_depth=keep_depth)
+    raise ConfigError(f"unknown recording format {fmt!r}")
+
+
+def isolate_points(pts: np.ndarray, fmt: str, meta: dict[str, Any],
+                   isolation: Isolation, path: Path) -> np.ndarray:
+    """Subject isolation for inputs read as points (recordings isolate on the depth image
+    instead): the depth range on ``z`` (camera frame, metres); the pixel box on depth PNGs, by
+    projecting each point back through the pinhole intrinsics they were read with.
+
+    Parameters
+    ----------
+    pts
+        ``(N, 3)`` float64, metres, camera frame.
+    fmt, meta
+        The format and the reader's description (``meta["intrinsics"]`` for depth PNGs).
+    isolation
+        What is kept.
+    path
+        The input, for messages.
+
+    Returns
+    -------
+    numpy.ndarray
+        The kept points, ``(M, 3)``.
+    """
+    if isolation.crop is not None and fmt != "depth-png":
+        raise ConfigError(f"--crop is a pixel box of depth images; {path} holds {fmt} points "
+                          "(crop those with --crop-min/--crop-max, metres)")
+    keep = isolation.depth_mask(pts[:, 2])
+    if isolation.crop is not None:
+        k = meta["intrinsics"]
+        z = np.where(pts[:, 2] > 0, pts[:, 2], 1.0)
+        u = np.rint(pts[:, 0] / z * k["fx"] + k["cx"])
+        v = np.rint(pts[:, 1] / z * k["fy"] + k["cy"])
+        u0, v0, u1, v1 = isolation.crop
+        keep &= (u >= u0) & (u < u1) & (v >= v0) & (v < v1)
+    return pts[keep]
