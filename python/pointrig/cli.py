@@ -334,11 +334,20 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def cmd_preview(args: argparse.Namespace) -> int:
-    """Write a PNG of one frame with ground-truth (and predicted) joints overlaid."""
-    from .viz import preview_sequence
+    """Write a PNG of one frame: of a recording or depth PNGs, what subject isolation keeps;
+    of a synthetic sequence, its points with ground-truth (and predicted) joints."""
+    from pathlib import Path
 
-    png = preview_sequence(args.sequence, args.output, frame=args.frame,
-                           skeleton_json=args.skeleton)
+    from .viz import preview_input, preview_sequence
+
+    png = None
+    if args.skeleton is None and not (Path(args.sequence) / "gt.npz").exists():
+        png = preview_input(args.sequence, args.output, frame=args.frame,
+                            isolation=_isolation(args), intrinsics=args.intrinsics,
+                            topic=args.topic)
+    if png is None:
+        png = preview_sequence(args.sequence, args.output, frame=args.frame,
+                               skeleton_json=args.skeleton)
     print(f"preview {png}")
     return 0
 
@@ -444,8 +453,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=cmd_evaluate)
 
-    p = sub.add_parser("preview", help="PNG of a frame: points coloured by depth, GT joints")
-    p.add_argument("sequence", help="sequence folder (frames/ and optional gt.npz)")
+    p = sub.add_parser("preview", help="PNG of a frame: of a recording or depth PNGs, the depth "
+                       "image and what --near/--far/--crop keep; else points and GT joints")
+    p.add_argument("sequence", help="a recording, a folder of depth PNGs, or a sequence folder "
+                   "(frames/ and optional gt.npz)")
+    p.add_argument("--near", type=float, default=None, metavar="M", help="as for extract")
+    p.add_argument("--far", type=float, default=None, metavar="M", help="as for extract")
+    p.add_argument("--crop", type=_ints4, default=None, metavar="U0,V0,U1,V1",
+                   help="as for extract: the box is drawn")
+    p.add_argument("--topic", default=None, help="ROS bags: the topic")
+    p.add_argument("--intrinsics", default=None, help="as for extract")
     p.add_argument("--frame", type=int, default=0, help="frame index (default 0)")
     p.add_argument("-o", "--output", required=True, help="output PNG")
     p.add_argument("--skeleton", default=None, help="also overlay a predicted skeleton.json")

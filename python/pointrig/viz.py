@@ -247,3 +247,115 @@ def save_sequence_gif(path: str | Path, frames: list[np.ndarray], joints: np.nda
     with atomic_path(path) as tmp:
         imgs[0].save(tmp, format="GIF", save_all=True, append_images=imgs[1:],
                      duration=int(1000 / fps), loop=0)
+
+
+def _depth_image(path: Path, fmt: str, frame: int, intrinsics: str | Path | None,
+                 topic: str | None) -> tuple[np.ndarray, str] | None:
+    """Frame ``frame`` of a depth-image input as ``(H, W)`` metres (0: no depth) and its name,
+    or ``None`` when the input holds points, not depth images."""
+    from .errors import InputError
+    from .io.readers import (
+        FRAME_FORMATS,
+        find_intrinsics,
+        natural_key,
+        read_intrinsics,
+    )
+    from .io.recordings import RECORDING_FORMATS, read_recording
+
+    if frame < 0:
+        raise InputError(f"frame {frame} is negative", path)
+    if fmt in RECORDING_FORMATS:
+        given = None if intrinsics is None else read_intrinsics(intrinsics)
+        rec = read_recording(path, fmt, start=frame, stop=frame + 1, intrinsics=given,
+                             topic=topic, keep_depth=True)
+        if not rec.frames:
+            raise InputError(f"frame {frame} out of range (the recording has "
+                             f"{rec.meta.get('frames_in_file', 0)} frames)", path)
+        return (rec.depth[0], rec.names[0]) if rec.depth else None
+    if fmt != "depth-png":
+        return None
+    from PIL import Image
+
+    files = sorted((f for f in path.iterdir() if f.is_file()
+                    and FRAME_FORMATS.get(f.suffix.lower()) == fmt),
+                   key=lambda f: natural_key(f.name))
+    if not 0 <= frame < len(files):
+        raise InputError(f"frame {frame} out of range (0..{len(files) - 1})", path)
+    intr = read_intrinsics(intrinsics if intrinsics is not None else find_intrinsics(path))
+    with Image.open(files[frame]) as im:
+        depth = np.asarray(im).astype(np.float64) * intr["depth_scale"]
+    return depth.astype(np.float32), files[frame].name
+
+
+def render_depth_isolation(depth: np.ndarray, isolation=None, title: str | None = None):
+    """A :class:`PIL.Image.Image` of a depth image ``(H, W)`` (metres, 0: no depth) showing
+    what subject isolation keeps: kept pixels coloured by depth, pixels cut by ``--near/--far``
+    or ``--crop`` in grey, no depth black; the ``--crop`` box outlined, and pixel coordinates
+    every 50 px along the edges (to pick a box)."""
+    from PIL import Image, ImageDraw
+
+    from .io.depthcam import Isolation
+
+    iso = isolation if isolation is not None else Isolation()
+    z = np.nan_to_num(np.asarray(depth, dtype=np.float64), nan=0.0)
+    valid = z > 0
+    kept = valid & iso.depth_mask(z) & iso.pixel_mask(z.shape)
+    H, W = z.shape
+    pad = 28
+    img = np.full((H + 2 * pad, W + 2 * pad, 3), 16, dtype=np.uint8)
+    view = img[pad:pad + H, pad:pad + W]
+    view[:] = 0
+    if valid.any():
+        zs = z[valid]
+        lo, hi = float(np.percentile(zs, 2)), float(np.percentile(zs, 98))
+        g = (200 - 140 * np.clip((z - lo) / max(hi - lo, 1e-9), 0, 1)).astype(np.uint8)
+        cut = valid & ~kept
+        view[cut] = np.stack([g[cut]] * 3, axis=1) // 2 + 20
+        if kept.any():
+            view[kept] = depth_colors(z[kept], lo, hi)
+    im = Image.fromarray(img)
+    draw = ImageDraw.Draw(im)
+    for u in range(0, W + 1, 50):
+        draw.line([(pad + u, pad - 5), (pad + u, pad - 1)], fill=(200, 200, 200))
+        draw.line([(pad + u, pad + H), (pad + u, pad + H + 4)], fill=(200, 200, 200))
+        if u % 100 == 0:
+            draw.text((pad + u - 6, pad + H + 6), str(u), fill=(200, 200, 200))
+    for v in range(0, H + 1, 50):
+        draw.line([(pad - 5, pad + v), (pad - 1, pad + v)], fill=(200, 200, 200))
+        draw.line([(pad + W, pad + v), (pad + W + 4, pad + v)], fill=(200, 200, 200))
+        if v % 100 == 0:
+            draw.text((2, pad + v - 5), str(v), fill=(200, 200, 200))
+    if iso.crop is not None:
+        u0, v0, u1, v1 = iso.crop
+        draw.rectangle([pad + u0, pad + v0, pad + u1 - 1, pad + v1 - 1], outline=(255, 255, 255))
+    text = f"kept {int(kept.sum())} of {int(valid.sum())} depth pixels"
+    if kept.any():
+        text += f", z {z[kept].min():.3f}..{z[kept].max():.3f} m"
+    draw.text((pad, 4), (title + ": " if title else "") + text, fill=(230, 230, 230))
+    return im
+
+
+def preview_input(path: str | Path, out_png: str | Path, frame: int = 0, isolation=None,
+                  intrinsics: str | Path | None = None, topic: str | None = None) -> Path | None:
+    """Write a PNG of what subject isolation keeps of frame ``frame`` of a depth-image input
+    (a recording, or a folder of depth PNGs): :func:`render_depth_isolation`.
+
+    Returns
+    -------
+    pathlib.Path or None
+        The PNG, or ``None`` when the input holds points rather than depth images (nothing
+        written; :func:`preview_sequence` draws those).
+    """
+    from .io import detect_format
+
+    p = Path(path)
+    got = _depth_image(p, detect_format(p), frame, intrinsics, topic)
+    if got is None:
+        return None
+    depth, name = got
+    im = render_depth_isolation(depth, isolation, title=f"{p.name} frame {frame} ({name})")
+    out = Path(out_png)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(out) as tmp:
+        im.save(tmp, format="PNG")
+    return out
