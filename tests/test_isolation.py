@@ -90,7 +90,7 @@ def test_info_describes_the_recordings(capsys) -> None:
     out = capsys.readouterr().out
     assert "device   Azure Kinect (serial 001514394512)" in out
     assert "depth    640 x 576 px, 5 fps, mode NFOV_UNBINNED" in out
-    assert "file     1 depth frames, 0.464 s" in out
+    assert "file     1 frame, 0.464 s" in out
     assert "(calibration.json attachment)" in out and "frames   1\n" in out
     assert main(["info", str(HAND), "--far", "0.7"]) == 0
     out = capsys.readouterr().out

@@ -101,7 +101,8 @@ def _print_recording(s: dict) -> None:
               + (f", mode {s['depth_mode']}" if s.get("depth_mode") else ""))
     if "frames_in_file" in s:
         dur = s.get("duration_s")
-        print(f"file     {s['frames_in_file']} depth frames"
+        n = s["frames_in_file"]
+        print(f"file     {n} frame{'' if n == 1 else 's'}"
               + (f", {dur:.3f} s" if dur is not None else ""))
     if "topic" in s:
         print(f"topic    {s['topic']} ({s.get('message_type', '')})")

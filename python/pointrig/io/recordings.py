@@ -4,6 +4,9 @@
 format         what                                                        recognised by
 =============  ==========================================================  ==================
 ``mkv``        Azure Kinect / Orbbec Femto recording (:mod:`.mkv`)         EBML magic bytes
+``rosbag1``    RealSense ``.bag`` and other ROS 1 bags (:mod:`.bags`)      ``#ROSBAG V2.0``
+``rosbag2``    ROS 2 bag: folder, or its ``.db3`` / ``.mcap`` file         ``metadata.yaml``,
+               (:mod:`.bags`)                                              SQLite/MCAP magic
 =============  ==========================================================  ==================
 
 Each reader returns a :class:`~pointrig.io.depthcam.Recording`: points in metres in the
@@ -19,13 +22,14 @@ from typing import Any
 import numpy as np
 
 from ..errors import ConfigError
+from .bags import MCAP_MAGIC, ROSBAG1_MAGIC, SQLITE_MAGIC
 from .depthcam import Isolation, Recording
 from .mkv import MATROSKA_MAGIC
 
 __all__ = ["RECORDING_FORMATS", "detect_recording", "read_recording", "isolate_points"]
 
 #: the recording formats, by the name :func:`detect_recording` gives them
-RECORDING_FORMATS = ("mkv",)
+RECORDING_FORMATS = ("mkv", "rosbag1", "rosbag2")
 
 
 def detect_recording(path: str | Path) -> str | None:
@@ -37,6 +41,14 @@ def detect_recording(path: str | Path) -> str | None:
             head = fh.read(16)
         if head.startswith(MATROSKA_MAGIC):
             return "mkv"
+        if head.startswith(ROSBAG1_MAGIC[:8]):
+            return "rosbag1"
+        if head.startswith(MCAP_MAGIC) or head.startswith(SQLITE_MAGIC):
+            return "rosbag2"
+    elif p.is_dir() and (p / "metadata.yaml").is_file():
+        head = (p / "metadata.yaml").read_bytes()[:200]
+        if b"rosbag2_bagfile_information" in head:
+            return "rosbag2"
     return None
 
 
@@ -74,6 +86,11 @@ def read_recording(path: str | Path, fmt: str, *, start: int = 0, stop: int | No
 
         return read_mkv(p, start=start, stop=stop, stride=stride, intrinsics=intrinsics,
                         isolation=isolation, keep_depth=keep_depth)
+    if fmt in ("rosbag1", "rosbag2"):
+        from .bags import read_bag
+
+        return read_bag(p, fmt, start=start, stop=stop, stride=stride, topic=topic,
+                        intrinsics=intrinsics, isolation=isolation, keep_depth=keep_depth)
     raise ConfigError(f"unknown recording format {fmt!r}")
 
 
