@@ -7,6 +7,10 @@ format         what                                                        recog
 ``rosbag1``    RealSense ``.bag`` and other ROS 1 bags (:mod:`.bags`)      ``#ROSBAG V2.0``
 ``rosbag2``    ROS 2 bag: folder, or its ``.db3`` / ``.mcap`` file         ``metadata.yaml``,
                (:mod:`.bags`)                                              SQLite/MCAP magic
+``r3d``        Record3D ``.r3d`` export (:mod:`.phone`)                    zip: ``metadata``,
+                                                                           ``rgbd/N.depth``
+``stray``      Stray Scanner folder (:mod:`.phone`)                        ``camera_matrix.csv``
+                                                                           and ``depth/``
 =============  ==========================================================  ==================
 
 Each reader returns a :class:`~pointrig.io.depthcam.Recording`: points in metres in the
@@ -25,11 +29,12 @@ from ..errors import ConfigError
 from .bags import MCAP_MAGIC, ROSBAG1_MAGIC, SQLITE_MAGIC
 from .depthcam import Isolation, Recording
 from .mkv import MATROSKA_MAGIC
+from .phone import is_r3d, is_stray
 
 __all__ = ["RECORDING_FORMATS", "detect_recording", "read_recording", "isolate_points"]
 
 #: the recording formats, by the name :func:`detect_recording` gives them
-RECORDING_FORMATS = ("mkv", "rosbag1", "rosbag2")
+RECORDING_FORMATS = ("mkv", "rosbag1", "rosbag2", "r3d", "stray")
 
 
 def detect_recording(path: str | Path) -> str | None:
@@ -45,6 +50,10 @@ def detect_recording(path: str | Path) -> str | None:
             return "rosbag1"
         if head.startswith(MCAP_MAGIC) or head.startswith(SQLITE_MAGIC):
             return "rosbag2"
+        if head.startswith(b"PK\x03\x04") and is_r3d(p):
+            return "r3d"
+    elif is_stray(p):
+        return "stray"
     elif p.is_dir() and (p / "metadata.yaml").is_file():
         head = (p / "metadata.yaml").read_bytes()[:200]
         if b"rosbag2_bagfile_information" in head:
@@ -91,6 +100,12 @@ def read_recording(path: str | Path, fmt: str, *, start: int = 0, stop: int | No
 
         return read_bag(p, fmt, start=start, stop=stop, stride=stride, topic=topic,
                         intrinsics=intrinsics, isolation=isolation, keep_depth=keep_depth)
+    if fmt in ("r3d", "stray"):
+        from .phone import read_r3d, read_stray
+
+        reader = read_r3d if fmt == "r3d" else read_stray
+        return reader(p, start=start, stop=stop, stride=stride, intrinsics=intrinsics,
+                      isolation=isolation, keep_depth=keep_depth)
     raise ConfigError(f"unknown recording format {fmt!r}")
 
 
