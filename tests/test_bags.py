@@ -8,6 +8,7 @@ back-projection ``x = (u - cx) z / fx``, ``y = (v - cy) z / fy`` of the depth im
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -206,3 +207,19 @@ def test_bag_errors_are_one_line_and_typed(tmp_path, capsys) -> None:
         read_sequence(cut)
     assert main(["info", str(cut)]) == 1
     assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+@pytest.mark.slow
+def test_extract_records_the_bag_in_skeleton_json(tmp_path) -> None:
+    synth = synthesize("arm", n_frames=6, seed=1, camera=Camera.kinect(320))
+    bag = tmp_path / "arm"
+    _write_ros2_bag(bag, StoragePlugin.MCAP, clouds=list(synth.frames))
+    out = tmp_path / "out"
+    assert main(["extract", str(bag), "-o", str(out), "--no-pictures", "-q", "--far", "5"]) == 0
+    src = json.loads((out / "skeleton.json").read_text())["source"]
+    assert src["format"] == "rosbag2" and src["topic"] == "/camera/points"
+    assert src["message_type"] == "sensor_msgs/msg/PointCloud2"
+    assert src["fps"] == pytest.approx(30.0, rel=1e-6) and src["frames_in_file"] == 6
+    assert src["timestamps_s"] == pytest.approx([100 + t * 33_333_333e-9 for t in range(6)])
+    assert src["points_per_frame"] == [len(f) for f in synth.frames]
+    assert src["isolation"] == {"near": None, "far": 5.0, "crop": None}
