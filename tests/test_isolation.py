@@ -71,6 +71,8 @@ def test_near_far_apply_to_point_inputs_and_crop_needs_depth_images(tmp_path, rn
         np.testing.assert_allclose(np.sort(got, axis=0), np.sort(want, axis=0), atol=1e-6)
     with pytest.raises(ConfigError, match="pixel box of depth images"):
         read_sequence(folder, isolation=Isolation(crop=(0, 0, 10, 10)))
+    with pytest.raises(ConfigError, match="--topic is for ROS bags"):
+        read_sequence(folder, topic="/camera/points")
 
 
 @pytest.mark.parametrize("args, message", [

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import EmptyFrameError, FormatError, InputError
+from ..errors import ConfigError, EmptyFrameError, FormatError, InputError
 from ..sequence import PointSequence
 from .depthcam import Isolation
 from .recordings import RECORDING_FORMATS, detect_recording, isolate_points, read_recording
@@ -572,6 +572,8 @@ def read_sequence(
     meta: dict[str, Any] = {}  # PointSequence.meta: what the reader used
     if stride < 1:
         raise InputError(f"stride must be >= 1, got {stride}", p)
+    if topic is not None and fmt not in RECORDING_FORMATS:
+        raise ConfigError(f"--topic is for ROS bags; {p} is a {fmt} input")
     if fmt in RECORDING_FORMATS:
         rec = read_recording(p, fmt, start=start, stop=stop, stride=stride, topic=topic,
                              isolation=isolation, intrinsics=None if intrinsics is None else
