@@ -30,11 +30,14 @@ class PointSequence:
         One name per frame (usually the file name), for messages.
     fmt
         The detected input format (``"ply"``, ``"pcd"``, ``"xyz"``, ``"npy"``, ``"npz"``,
-        ``"depth-png"`` or ``"memory"``).
+        ``"depth-png"``, a recording format of
+        :data:`pointrig.io.recordings.RECORDING_FORMATS`, or ``"memory"``).
     meta
         What the reader used besides the frames, JSON-able, recorded with the results: for depth
         PNGs ``{"intrinsics": {"path": ..., "fx": ..., ...}}`` (pixels; ``depth_scale`` in
-        metres per unit).
+        metres per unit); for recordings also ``device``, ``resolution``, ``fps``,
+        ``timestamps_s``, ``duration_s`` (:class:`pointrig.io.depthcam.Recording`); with
+        subject isolation ``isolation``.
     """
 
     frames: list[np.ndarray]

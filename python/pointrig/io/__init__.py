@@ -5,7 +5,10 @@ Supported inputs (see :func:`read_sequence`):
 - a directory of per-frame files in natural order (``frame_2`` before ``frame_10``):
   PLY (ascii and binary), PCD (ascii, binary and binary_compressed), XYZ/TXT, NPY;
 - one ``.npz`` holding all frames;
-- a directory of 16-bit depth PNGs in millimetres plus an intrinsics JSON.
+- a directory of 16-bit depth PNGs in millimetres plus an intrinsics JSON;
+- a recording as a camera or app writes it, recognised by content (:mod:`.recordings`):
+  Azure Kinect / Orbbec ``.mkv``, RealSense ``.bag`` and ROS 2 bags, Record3D ``.r3d``,
+  Stray Scanner folders.
 
 All points are returned as ``(N, 3)`` float64 in metres.
 """
