@@ -175,6 +175,10 @@ def test_ros2_bags_round_trip_depth_images_and_point_clouds(tmp_path, plugin) ->
     seq = read_sequence(storage, topic="/camera/depth/image_rect_raw")
     for got, z in zip(seq.frames, depth):
         np.testing.assert_allclose(got, _expected(z), rtol=0, atol=1e-6)
+    part = read_sequence(storage, topic="/camera/depth/image_rect_raw", start=1, stride=2,
+                         min_frames=1)
+    assert len(part) == 1 and part.meta["frames_in_file"] == 3
+    np.testing.assert_allclose(part.frames[0], _expected(depth[1]), rtol=0, atol=1e-6)
     assert seq.meta["depth_unit_m"] == 1.0
 
     seq = read_sequence(bag, topic="/camera/points")

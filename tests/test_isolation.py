@@ -97,3 +97,18 @@ def test_info_describes_the_recordings(capsys) -> None:
     assert main(["info", str(HAND), "--far", "0.7"]) == 0
     out = capsys.readouterr().out
     assert "kept     far 0.7 m" in out and "frames   11" in out
+    assert "depth    640 x 480 px\n" in out
+
+
+def test_readers_keep_the_data_of_exactly_the_frames_a_slice_can_select() -> None:
+    from pointrig.io.depthcam import may_select, select_frames
+
+    for n in (0, 1, 7, 12):
+        for start in (0, 1, 3, -4):
+            for stop in (None, 5, 20, -2):
+                for stride in (1, 2, 3):
+                    chosen = select_frames(n, start, stop, stride)
+                    kept = [i for i in range(n) if may_select(i, start, stop, stride)]
+                    assert set(chosen) <= set(kept)
+                    if start >= 0 and (stop is None or stop >= 0):
+                        assert kept == chosen

@@ -95,7 +95,10 @@ def _print_recording(s: dict) -> None:
     """The recording's own description (device, image, rate, calibration, time), if any."""
     if "device" in s:
         print(f"device   {s['device']}")
-    if "resolution" in s:
+    k = s.get("intrinsics", {})
+    if "resolution" not in s and "width" in k and "height" in k:  # depth PNGs
+        print(f"depth    {int(k['width'])} x {int(k['height'])} px")
+    if s.get("resolution"):
         fps = f", {s['fps']:g} fps" if s.get("fps") else ""
         print(f"depth    {s['resolution'][0]} x {s['resolution'][1]} px{fps}"
               + (f", mode {s['depth_mode']}" if s.get("depth_mode") else ""))

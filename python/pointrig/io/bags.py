@@ -27,6 +27,7 @@ from .depthcam import (
     Recording,
     check_crop,
     depth_image_points,
+    may_select,
     need_extra,
     pinhole_rays,
     select_frames,
@@ -264,7 +265,9 @@ def _read(reader: Any, p: Path, fmt: str, start: int, stop: int | None, stride: 
           isolation: Isolation | None, keep_depth: bool) -> Recording:
     conns = list(reader.connections)
     conn = _choose_topic(conns, topic, p)
-    stamps = [(c, t, raw) for c, t, raw in reader.messages(connections=[conn])]
+    # the data of the messages that can be used only (a long bag does not all sit in memory)
+    stamps = [(c, t, raw if may_select(i, start, stop, stride) else b"")
+              for i, (c, t, raw) in enumerate(reader.messages(connections=[conn]))]
     if not stamps:
         raise InputError(f"topic {conn.topic!r} holds no messages", p)
     idx = select_frames(len(stamps), start, stop, stride)

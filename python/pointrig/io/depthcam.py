@@ -22,7 +22,8 @@ import numpy as np
 from ..errors import ConfigError, PointrigError
 
 __all__ = ["Isolation", "Recording", "pinhole_rays", "brown_conrady_rays",
-           "brown_conrady_project", "depth_image_points", "need_extra", "select_frames"]
+           "brown_conrady_project", "depth_image_points", "need_extra", "select_frames",
+           "may_select"]
 
 
 def need_extra(module: str, what: str) -> Any:
@@ -127,6 +128,15 @@ class Recording:
 def select_frames(n: int, start: int, stop: int | None, stride: int) -> list[int]:
     """The indices ``range(n)[start:stop:stride]`` as a list."""
     return list(range(n))[start:stop:stride]
+
+
+def may_select(i: int, start: int, stop: int | None, stride: int) -> bool:
+    """Whether frame ``i`` can be among :func:`select_frames` before the frame count is known
+    (a reader keeps only those frames' data while it reads; with a negative ``start`` or
+    ``stop`` every frame can be)."""
+    if start < 0 or (stop is not None and stop < 0):
+        return True
+    return i >= start and (stop is None or i < stop) and (i - start) % stride == 0
 
 
 def pinhole_rays(width: int, height: int, fx: float, fy: float, cx: float,

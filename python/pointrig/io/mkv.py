@@ -31,6 +31,7 @@ from .depthcam import (
     brown_conrady_rays,
     check_crop,
     depth_image_points,
+    may_select,
     need_extra,
     pinhole_rays,
     select_frames,
@@ -210,7 +211,10 @@ def read_mkv(path: str | Path, *, start: int = 0, stop: int | None = None, strid
             for pkt in container.demux(ds):
                 if pkt.size == 0 or pkt.pts is None:
                     continue
-                packets.append((float(pkt.pts * pkt.time_base), bytes(pkt),
+                # the data of the frames that can be used only: a long recording's depth
+                # does not all sit in memory
+                keep = may_select(len(packets), start, stop, stride)
+                packets.append((float(pkt.pts * pkt.time_base), bytes(pkt) if keep else b"",
                                 None if not pkt.duration else float(pkt.duration * pkt.time_base)))
         except Exception as exc:  # PyAV's demuxer errors (av.error.*): a damaged file
             raise FormatError(f"damaged Matroska recording after {len(packets)} depth "
