@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from PIL import Image
 from rosbags.rosbag1 import Writer as Writer1
 from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
@@ -227,3 +228,21 @@ def test_extract_records_the_bag_in_skeleton_json(tmp_path) -> None:
     assert src["timestamps_s"] == pytest.approx([100 + t * 33_333_333e-9 for t in range(6)])
     assert src["points_per_frame"] == [len(f) for f in synth.frames]
     assert src["isolation"] == {"near": None, "far": 5.0, "crop": None}
+
+
+def test_preview_of_a_point_cloud_topic_draws_the_kept_points(tmp_path) -> None:
+    synth = synthesize("arm", n_frames=2, seed=0, camera=Camera.kinect(320))
+    bag = tmp_path / "bag"
+    _write_ros2_bag(bag, StoragePlugin.SQLITE3, depth=_depth_sequence(2), clouds=synth.frames)
+    png = tmp_path / "p.png"
+    assert main(["preview", str(bag), "--topic", "/camera/points", "-o", str(png)]) == 0
+    far = float(np.median(synth.frames[0][:, 2]))
+    cut = tmp_path / "cut.png"
+    assert main(["preview", str(bag), "--topic", "/camera/points", "--far", str(far),
+                 "-o", str(cut)]) == 0
+
+    def drawn(path: Path) -> int:  # pixels off the dark background
+        img = np.asarray(Image.open(path).convert("RGB")).astype(int)
+        return int((img.max(axis=2) > 40).sum())
+
+    assert 0 < drawn(cut) < drawn(png)

@@ -351,7 +351,8 @@ def cmd_preview(args: argparse.Namespace) -> int:
                             topic=args.topic)
     if png is None:
         png = preview_sequence(args.sequence, args.output, frame=args.frame,
-                               skeleton_json=args.skeleton)
+                               skeleton_json=args.skeleton, isolation=_isolation(args),
+                               topic=args.topic)
     print(f"preview {png}")
     return 0
 

@@ -94,15 +94,19 @@ def render_preview(points: np.ndarray, joints: np.ndarray | None = None,
 
 
 def preview_sequence(seq_dir: str | Path, out_png: str | Path, frame: int = 0,
-                     skeleton_json: str | Path | None = None) -> Path:
+                     skeleton_json: str | Path | None = None, isolation=None,
+                     topic: str | None = None) -> Path:
     """Write a PNG preview of frame ``frame`` of a sequence folder (``frames/`` + optional
-    ``gt.npz``), with GT joints and, optionally, a predicted ``skeleton.json`` overlaid."""
+    ``gt.npz``), with GT joints and, optionally, a predicted ``skeleton.json`` overlaid; the
+    points as read with ``isolation`` (:class:`pointrig.io.depthcam.Isolation`) and, for a
+    bag, ``topic``."""
     from .errors import InputError
     from .io import read_sequence
 
     d = Path(seq_dir)
     frames_dir = d / "frames" if (d / "frames").is_dir() else d
-    seq = read_sequence(frames_dir, start=frame, stop=frame + 1, min_frames=1)
+    seq = read_sequence(frames_dir, start=frame, stop=frame + 1, min_frames=1,
+                        isolation=isolation, topic=topic)
     joints = parents = None
     intr = None
     gt_path = d / "gt.npz"
