@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import sys
 from pathlib import Path
 
 import av  # the capture extra (make setup installs it)
@@ -199,3 +200,11 @@ def test_given_intrinsics_replace_the_calibration_and_a_crop_must_fit(tmp_path) 
     np.testing.assert_allclose(pts[:, 2], depth[v, u], rtol=1e-6)
     with pytest.raises(InputError, match="goes past the 640 x 576"):
         read_mkv(MKV, isolation=Isolation(crop=(0, 0, 700, 100)))
+
+
+def test_without_the_capture_extra_the_error_says_how_to_install_it(monkeypatch, capsys) -> None:
+    monkeypatch.setitem(sys.modules, "av", None)  # as if PyAV were not installed
+    assert main(["info", str(MKV)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "needs the Python package 'av'" in err[0]
+    assert "pip install 'pointrig[capture]'" in err[0]
