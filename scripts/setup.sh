@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # Set up the development environment, idempotently (a second run only rebuilds what changed):
 #   .venv (Python 3.11) with the Python dependencies (pyproject.toml's runtime, dev and capture
-#   lists at the versions of constraints.txt), then the Rust extension, built with the release profile
-#   (the one `make test-rust` tests with, so the dependencies compile once) and pointrig
-#   installed editable, with its `pointrig` command in .venv/bin.
+#   lists at the versions of constraints.txt), then the Rust extension, built with the release
+#   profile (the one `make test-rust` tests with, so the dependencies compile once) and
+#   pointrig installed editable, with its `pointrig` command in .venv/bin.
 #
 #   bash scripts/setup.sh                 # everything
 #   bash scripts/setup.sh --python-only   # the venv and its packages, no Rust build
