@@ -2,9 +2,9 @@
 
 Every error pointrig raises on purpose derives from :class:`PointrigError`. The Rust core's
 error enum (``rust/core/error.rs``) maps onto these classes in one place
-(``rust/py/mod.rs::to_pyerr``): ``NonFinite`` -> :class:`InputError`, ``Convergence`` ->
-:class:`ConvergenceError`, ``Numerical`` -> :class:`NumericalError`, ``InvalidInput`` ->
-``ValueError``.
+(``rust/py/mod.rs::to_pyerr``): ``InvalidInput`` (a bad shape, size or value, coordinates
+beyond 1e12 m) and ``NonFinite`` -> :class:`InputError`, ``Convergence`` ->
+:class:`ConvergenceError`, ``Numerical`` -> :class:`NumericalError`.
 """
 
 from __future__ import annotations

@@ -13,8 +13,8 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import EmptyFrameError, FormatError, InputError
-from ..sequence import PointSequence
+from ..errors import ConfigError, EmptyFrameError, FormatError, InputError
+from ..sequence import MAX_COORD, PointSequence
 
 __all__ = ["FRAME_FORMATS", "detect_format", "read_frame", "read_sequence", "natural_key",
            "read_intrinsics", "find_intrinsics", "INTRINSICS_NAMES", "depth_to_points",
@@ -512,6 +512,17 @@ def voxel_downsample(points: np.ndarray, voxel: float) -> np.ndarray:
     return out / counts[:, None]
 
 
+def _corner(value: Any, name: str) -> np.ndarray:
+    """A crop corner as ``(3,)`` float64 metres, or :class:`ConfigError` naming ``name``."""
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        arr = np.zeros(0)
+    if arr.shape != (3,) or not np.isfinite(arr).all():
+        raise ConfigError(f"{name} must be 3 finite numbers (x, y, z metres), got {value!r}")
+    return arr
+
+
 def read_sequence(
     path: str | Path,
     *,
@@ -556,6 +567,10 @@ def read_sequence(
         ``F`` frames of ``(N_t, 3)`` float64 points in metres.
     """
     p = Path(path)
+    if not (np.isfinite(scale) and scale > 0):
+        raise ConfigError(f"scale must be a positive number (units to metres), got {scale:g}")
+    lo = None if crop_min is None else _corner(crop_min, "crop_min")
+    hi = None if crop_max is None else _corner(crop_max, "crop_max")
     fmt = detect_format(p)
     meta: dict[str, Any] = {}  # PointSequence.meta: what the reader used
     if stride < 1:
@@ -584,16 +599,20 @@ def read_sequence(
     if len(frames) < min_frames:
         raise InputError(f"sequence has {len(frames)} frame(s) after frame selection; "
                          f"at least {min_frames} are needed", p)
-    lo = None if crop_min is None else np.asarray(crop_min, dtype=np.float64)
-    hi = None if crop_max is None else np.asarray(crop_max, dtype=np.float64)
     out = []
     for i, (pts, name) in enumerate(zip(frames, names)):
-        pts = np.asarray(pts, dtype=np.float64) * scale
+        with np.errstate(over="ignore", invalid="ignore"):  # overflow is refused just below
+            pts = np.asarray(pts, dtype=np.float64) * scale
+        where = p / name if p.is_dir() else p
         bad = ~np.isfinite(pts).all(axis=1)
         if bad.any():
             raise InputError(f"{int(bad.sum())} point(s) with NaN/inf coordinates "
-                             f"(first at row {int(np.argmax(bad))})", p / name if
-                             p.is_dir() else p, frame=i)
+                             f"(first at row {int(np.argmax(bad))})", where, frame=i)
+        far = np.abs(pts).max(axis=1, initial=0.0) > MAX_COORD
+        if far.any():
+            raise InputError(f"{int(far.sum())} point(s) farther than {MAX_COORD:g} m from the "
+                             f"origin (first at row {int(np.argmax(far))}); pointrig works in "
+                             "metres", where, frame=i)
         if lo is not None:
             pts = pts[(pts >= lo).all(axis=1)]
         if hi is not None:
