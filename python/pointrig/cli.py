@@ -178,14 +178,17 @@ def _summary_line(res, out, input_s: float | None = None) -> str:
 
 def cmd_extract(args: argparse.Namespace) -> int:
     """Run the pipeline on a sequence."""
+    from .io.outdir import OutputDir
     from .pipeline import extract
 
     cfg = _config_from_args(args)
-    t0 = time.perf_counter()
-    seq = _read_configured(args, cfg)
-    input_s = time.perf_counter() - t0
-    res = extract(seq, cfg, args.output, resume=args.resume, stop_after=args.stop_after,
-                  pictures=not args.no_pictures, progress=_ProgressPrinter(args.quiet))
+    # the output folder checked and locked before the input is read
+    with OutputDir(args.output) as od:
+        t0 = time.perf_counter()
+        seq = _read_configured(args, cfg)
+        input_s = time.perf_counter() - t0
+        res = extract(seq, cfg, od, resume=args.resume, stop_after=args.stop_after,
+                      pictures=not args.no_pictures, progress=_ProgressPrinter(args.quiet))
     if res.skeleton is None:
         print(f"registration written to {res.files.get('registration')}")
     else:

@@ -2,7 +2,9 @@
 
 :func:`extract` runs the steps with a registration checkpoint (reused when the input and the
 step-1 parameters match, so changing a later step's parameter does not redo step 1) and
-writes the outputs atomically:
+writes the outputs as one set, whole or absent (:class:`pointrig.io.outdir.OutputDir`: every
+file is staged, then moved into the folder and named in ``manifest.json``, written last; the
+folder is checked and locked before step 1):
 
 - ``skeleton.json``  the ``pointrig.skeleton/1`` contract (see the README);
 - ``weights.npz``    rest points, skinning weights ``(M, B)``, labels, bone transforms;
@@ -10,7 +12,8 @@ writes the outputs atomically:
 - ``skeleton.bvh``   the animated skeleton as motion capture (Blender, MotionBuilder);
 - ``skeleton.glb``   glTF 2.0: joints, skin, the rest points as a skinned point mesh and the
   animation (Blender, Godot, Unity, three.js), see :func:`pointrig.export.write_gltf`;
-- ``skeleton.png``, ``skeleton.gif``  pictures (optional).
+- ``skeleton.png``, ``skeleton.gif``  pictures (optional);
+- ``manifest.json``  the files of the set with their sizes and SHA-256, written last.
 
 The output stage that turns step 3's bones into the written skeleton (joint selection,
 output tree, splits, joint depth, bone rolls) is :mod:`pointrig.output`;
@@ -21,7 +24,8 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -29,13 +33,16 @@ from typing import Any, Literal
 import numpy as np
 
 from .config import PipelineConfig
+from .errors import OutputError
 from .export import write_bvh, write_gltf
+from .io.outdir import OutputDir, fault_point
 from .output import build_skeleton, output_skeleton
 from .preprocess import remove_sparse_frames
 from .sequence import PointSequence, check_units
 from .skeleton import Skeleton
 
-__all__ = ["ExtractResult", "build_skeleton", "extract", "output_skeleton"]
+__all__ = ["ExtractResult", "build_skeleton", "expected_output_bytes", "extract",
+           "output_skeleton"]
 
 log = logging.getLogger(__name__)
 
@@ -69,7 +76,7 @@ class ExtractResult:
 def extract(
     seq: PointSequence,
     config: PipelineConfig | None = None,
-    out_dir: str | Path | None = None,
+    out_dir: str | Path | OutputDir | None = None,
     *,
     resume: bool = True,
     stop_after: StopAfter = "joints",
@@ -85,9 +92,11 @@ def extract(
     config
         All parameters (default: Table 1 defaults and pointrig's improvements).
     out_dir
-        Output folder; ``None`` writes nothing.
+        Output folder (or one already opened, :class:`pointrig.io.outdir.OutputDir`);
+        ``None`` writes nothing.
     resume
-        Reuse ``out_dir/registration.npz`` when its key (input + step-1 parameters) matches.
+        Reuse ``out_dir/registration.npz`` (or the one an interrupted run into ``out_dir``
+        left) when its key (input + step-1 parameters) matches.
     stop_after
         ``"registration"``, ``"structure"`` (write the step-2 skeleton) or ``"joints"``.
     pictures
@@ -100,14 +109,66 @@ def extract(
     InputError
         When a frame spans more than ``config.preprocess.max_extent`` metres (input not in
         metres, :func:`pointrig.sequence.check_units`), before anything is written.
+    OutputError
+        Before step 1, when ``out_dir`` is a file, not writable, short of free space or
+        locked by another run; later, when a write fails (the folder's previous set stays).
     """
     config = config or PipelineConfig()
     check_units(seq, config.preprocess.max_extent)
-    out = None if out_dir is None else Path(out_dir)
+    args = (resume, stop_after, pictures, progress)
+    if out_dir is None:
+        return _extract(seq, config, None, *args)
+    if isinstance(out_dir, OutputDir):  # already checked and locked by the caller
+        return _extract_into(out_dir, seq, config, *args)
+    with OutputDir(out_dir) as od:
+        return _extract_into(od, seq, config, *args)
+
+
+def _extract_into(od: OutputDir, seq: PointSequence, config: PipelineConfig, resume: bool,
+                  stop_after: StopAfter, pictures: bool, progress: Progress | None
+                  ) -> ExtractResult:
+    """:func:`extract` into the locked output folder ``od``: the free space checked first,
+    the outputs staged, then committed as one set."""
+    od.require_space(expected_output_bytes(seq, pictures))
+    result = _extract(seq, config, od, resume, stop_after, pictures, progress)
+    fault_point("before-commit")
+    try:
+        final = od.commit()
+    except OSError as exc:
+        raise OutputError(f"cannot move the outputs into place: {exc.strerror or exc}",
+                          od.path) from None
+    result.files = {key: final[path.name] for key, path in result.files.items()}
+    return result
+
+
+def expected_output_bytes(seq: PointSequence, pictures: bool = True) -> int:
+    """A generous estimate of the bytes :func:`extract` writes for ``seq``: the registration
+    checkpoint, the weights and the glTF hold a few float64 3-vectors per template point and
+    frame (the template is at most a frame's size), plus the pictures."""
+    n = int(np.max(seq.counts)) if len(seq) else 0
+    return 48 * len(seq) * n + 64 * n + (8 << 20 if pictures else 0) + (1 << 20)
+
+
+@contextmanager
+def _writing(out: Path) -> Iterator[None]:
+    """Turn a failed write (a full disk, a permission) into one :class:`OutputError` line."""
+    try:
+        yield
+    except OSError as exc:
+        if isinstance(exc, OutputError):
+            raise
+        raise OutputError(f"cannot write the outputs: {exc.strerror or exc}", out) from None
+
+
+def _extract(seq: PointSequence, config: PipelineConfig, od: OutputDir | None, resume: bool,
+             stop_after: StopAfter, pictures: bool, progress: Progress | None) -> ExtractResult:
+    """The body of :func:`extract`; outputs go to ``od``'s staging folder (none without)."""
+    out = None if od is None else od.stage
     timings: dict[str, float] = {}
     n_input = [int(c) for c in seq.counts]
     seq, removed = _clean_input(seq, config, timings)
-    reg, reused, ckpt = _step1(seq, config, out, resume, timings, progress)
+    reg, reused, ckpt = _step1(seq, config, od, resume, timings, progress)
+    fault_point("registered")
     result = ExtractResult(None, reg, timings=timings, reused_registration=reused,
                            sparse_removed=removed, frames=list(seq.frames))
     if ckpt is not None:
@@ -130,7 +191,8 @@ def extract(
         st.view_camera, observed=(seq.frames, final.points) if stop_after == "joints" else None,
         timings=timings)
     if out is not None:
-        _write_outputs(out, seq, reg, result, config, stop_after, n_input, pictures)
+        with _writing(out):
+            _write_outputs(out, seq, reg, result, config, stop_after, n_input, pictures)
     return result
 
 
@@ -154,31 +216,38 @@ def _clean_input(seq: PointSequence, config: PipelineConfig, timings: dict[str, 
     return seq, removed
 
 
-def _step1(seq: PointSequence, config: PipelineConfig, out: Path | None, resume: bool,
+def _step1(seq: PointSequence, config: PipelineConfig, od: OutputDir | None, resume: bool,
            timings: dict[str, float], progress: Progress | None) -> tuple[Any, bool, Path | None]:
-    """Step 1, registration (§4), with its checkpoint ``out/registration.npz``: reused when its
-    key (input + step-1 parameters) matches and ``resume``, else computed and written. Returns
-    the registration, whether it was reused, and the checkpoint's path (``None`` without
-    ``out``). Its seconds go to ``timings["registration"]``."""
+    """Step 1, registration (§4), with its checkpoint ``registration.npz``: the one an
+    interrupted run staged or the committed one in the output folder is reused when its key
+    (input + step-1 parameters) matches and ``resume``, else step 1 runs and its checkpoint is
+    staged. Returns the registration, whether it was reused, and the staged checkpoint's path
+    (``None`` without ``od``). Its seconds go to ``timings["registration"]``."""
     from . import registration as reg_mod
 
     t0 = time.perf_counter()
     reg = None
-    ckpt = None if out is None else out / "registration.npz"
-    if resume and ckpt is not None and ckpt.exists():
+    name = "registration.npz"
+    for cand in (od.resume_candidates(name) if od is not None and resume else []):
         try:
-            cached = reg_mod.RegistrationResult.load(ckpt)
+            cached = reg_mod.RegistrationResult.load(cand)
             if cached.key == reg_mod.cache_key(seq, config.registration):
                 reg = cached
-                log.info("reusing registration checkpoint %s", ckpt)
+                log.info("reusing registration checkpoint %s", cand)
+                if cand.parent != od.stage:
+                    with _writing(od.path):
+                        od.carry(name)
+                break
         except Exception as exc:  # noqa: BLE001 - a stale or damaged checkpoint is recomputed
-            log.warning("ignoring registration checkpoint %s: %s", ckpt, exc)
+            log.warning("ignoring registration checkpoint %s: %s", cand, exc)
     reused = reg is not None
+    ckpt = None if od is None else od.staged(name)
     if reg is None:
         reg = reg_mod.register_sequence(seq, config.registration,
                                         progress=_report(progress, "registration"))
         if ckpt is not None:
-            reg.save(ckpt)
+            with _writing(od.path):
+                reg.save(ckpt)
     timings["registration"] = time.perf_counter() - t0
     return reg, reused, ckpt
 
@@ -272,5 +341,6 @@ def _write_pictures(out: Path, seq: PointSequence, reg: Any, skel: Skeleton) -> 
     frames = [reg.points[t] for t in range(len(seq))]
     save_skeleton_png(out / "skeleton.png", frames, skel.joint_positions, skel.parents,
                       point_colors=pc)
+    fault_point("pictures")
     save_sequence_gif(out / "skeleton.gif", frames, skel.joint_positions, skel.parents,
                       point_colors=pc)
