@@ -21,6 +21,7 @@ import numpy as np
 import pytest
 
 from pointrig.cli import main
+from pointrig.errors import InputError
 
 
 def _cloud(seed: int, n: int = 400) -> np.ndarray:
@@ -86,6 +87,61 @@ def _far_points(tmp: Path, value: float) -> list[str]:
     return _seq(tmp, frames)
 
 
+def _npz(tmp: Path, data: bytes) -> list[str]:
+    (tmp / "seq.npz").write_bytes(data)
+    return ["extract", str(tmp / "seq.npz")]
+
+
+def _good_npz_bytes() -> bytes:
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **{f"f{i}": _cloud(i) for i in range(3)})
+    return buf.getvalue()
+
+
+def _corrupt_npz(tmp: Path) -> list[str]:
+    data = bytearray(_good_npz_bytes())
+    mid = len(data) // 2
+    data[mid:mid + 64] = bytes(64)  # a zeroed block inside the compressed members
+    return _npz(tmp, bytes(data))
+
+
+def _complex_npy(tmp: Path) -> list[str]:
+    frames: list[np.ndarray] = [_cloud(i) for i in range(3)]
+    frames[1] = frames[1] + 0.5j
+    return _seq(tmp, frames)
+
+
+def _depth_pngs(tmp: Path, intrinsics: dict) -> list[str]:
+    from PIL import Image
+
+    folder = tmp / "in"
+    folder.mkdir()
+    for i in range(3):
+        depth = np.full((48, 64), 2000 + 10 * i, np.uint16)
+        Image.fromarray(depth).save(folder / f"depth_{i:03d}.png")
+    (folder / "intrinsics.json").write_text(json.dumps(intrinsics))
+    return ["extract", str(folder)]
+
+
+def _odd_entry(tmp: Path, kind: str) -> list[str]:
+    folder = _npy_frames(tmp / "in", [_cloud(i) for i in range(4)])
+    bad = folder / "frame_002.npy"
+    bad.unlink()
+    if kind == "dangling":
+        bad.symlink_to(folder / "gone.npy")
+    elif kind == "fifo":
+        os.mkfifo(bad)
+    elif kind == "device":
+        bad.symlink_to("/dev/null")
+    return ["extract", str(folder)]
+
+
+def _text_npy(tmp: Path) -> list[str]:
+    folder = _npy_frames(tmp / "in", [_cloud(i) for i in range(3)])
+    (folder / "frame_001.npy").write_text("1 2 3\n")
+    return ["extract", str(folder)]
+
+
 CASES = [
     Case("points at 1e18 m", lambda t: _far_points(t, 1e18),
          r"frame_002\.npy: frame 2: 5 point\(s\) farther than 1e\+12 m"),
@@ -98,6 +154,46 @@ CASES = [
          r"scale must be a positive number .* got 0"),
     Case("--scale -1", lambda t: _seq(t, [_cloud(i) for i in range(3)]) + ["--scale", "-1"],
          r"scale must be a positive number .* got -1"),
+    Case("PLY element line without a count",
+         lambda t: ["extract", str(_ply_frames(t / "in", _ascii_ply(_cloud(1), vertex_line=
+                                                                       "element vertex")))],
+         r"frame_001\.ply: frame 1: PLY header line 3 lacks a value: 'element vertex'"),
+    Case("PLY property line without a name",
+         lambda t: ["extract", str(_ply_frames(t / "in", _ascii_ply(_cloud(1)).replace(
+             "property float z", "property float")))],
+         r"frame_001\.ply: frame 1: PLY header line 6 lacks a value: 'property float'"),
+    Case("PLY negative vertex count",
+         lambda t: ["extract", str(_ply_frames(t / "in", _ascii_ply(_cloud(1), count=-5)))],
+         r"frame_001\.ply: frame 1: PLY header line 3: negative element count -5"),
+    Case("PLY vertex count not a number",
+         lambda t: ["extract", str(_ply_frames(t / "in", _ascii_ply(_cloud(1), vertex_line=
+                                                                       "element vertex 1e3")))],
+         r"frame_001\.ply: frame 1: PLY header line 3: element count '1e3' is not a whole"),
+    Case("PCD SIZE 1", lambda t: ["extract", str(_pcd_frames(t / "in", "1 1 1"))],
+         r"frame_001\.pcd: frame 1: malformed PCD header: field 'x' of TYPE F has SIZE 1"),
+    Case("PCD SIZE 3", lambda t: ["extract", str(_pcd_frames(t / "in", "3 3 3"))],
+         r"frame_001\.pcd: frame 1: malformed PCD header: field 'x' of TYPE F has SIZE 3"),
+    Case("PCD two sizes for three fields", lambda t: ["extract", str(_pcd_frames(t / "in",
+                                                                                "4 4"))],
+         r"frame_001\.pcd: frame 1: malformed PCD header: 3 FIELDS but 2 SIZE"),
+    Case("corrupt .npz zip", _corrupt_npz, r"seq\.npz: not a readable \.npz file: "),
+    Case("text file named .npz", lambda t: _npz(t, b"0.1 0.2 0.3\n0.4 0.5 0.6\n"),
+         r"seq\.npz: not a \.npz archive \(a zip of \.npy arrays\)"),
+    Case("complex NPY", _complex_npy,
+         r"frame_001\.npy: frame 1: array holds complex128 values; coordinates must be real"),
+    Case("text file named .npy", _text_npy, r"frame_001\.npy: frame 1: not a \.npy array"),
+    Case('intrinsics "fx": true',
+         lambda t: _depth_pngs(t, {"fx": True, "fy": 50.0, "cx": 32.0, "cy": 24.0}),
+         r"intrinsics\.json: intrinsics values must be numbers: 'fx' is true"),
+    Case('intrinsics "fy": "50"',
+         lambda t: _depth_pngs(t, {"fx": 50.0, "fy": "50", "cx": 32.0, "cy": 24.0}),
+         r"intrinsics\.json: intrinsics values must be numbers: 'fy' is \"50\""),
+    Case("dangling symlink among the frames", lambda t: _odd_entry(t, "dangling"),
+         r"frame_002\.npy: frame 2: a symbolic link to '.*gone\.npy', which does not exist"),
+    Case("FIFO among the frames", lambda t: _odd_entry(t, "fifo"),
+         r"frame_002\.npy: frame 2: a FIFO \(named pipe\), not a frame file"),
+    Case("device link among the frames", lambda t: _odd_entry(t, "device"),
+         r"frame_002\.npy: frame 2: a character device, not a frame file"),
 ]
 
 
@@ -146,3 +242,37 @@ if __name__ == "__main__":  # the table of the corpus: case | exit code | messag
         msg = err.strip().replace(d + os.sep, "").replace("|", "\\|")
         print(f"| {c.name} | {code} | {msg} |")
     sys.exit(0)
+
+
+def test_a_crop_corner_of_two_numbers_is_a_config_error(tmp_path: Path) -> None:
+    from pointrig.errors import ConfigError
+    from pointrig.io import read_sequence
+
+    folder = _npy_frames(tmp_path / "in", [_cloud(i) for i in range(3)])
+    with pytest.raises(ConfigError, match=r"crop_min must be 3 finite numbers.*\(0, 0\)"):
+        read_sequence(folder, crop_min=(0, 0))
+
+
+def test_a_checkpoint_with_a_nan_is_named_and_recomputed(tmp_path: Path, caplog) -> None:
+    """A registration checkpoint whose key matches the input but which holds a NaN: the run
+    names the file, runs step 1 again and writes a finite checkpoint."""
+    from pointrig.registration import RegistrationResult
+
+    folder = _npy_frames(tmp_path / "in", [_cloud(0, 300) + [0.01 * i, 0, 0] for i in range(3)])
+    out = tmp_path / "out"
+    argv = ["extract", str(folder), "-o", str(out), "-q", "--stop-after", "registration"]
+    so, se = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(so), contextlib.redirect_stderr(se):
+        assert main(argv) == 0, se.getvalue()
+    ckpt = out / "registration.npz"
+    reg = RegistrationResult.load(ckpt)
+    reg.points[1, 7, 2] = np.nan
+    reg.save(ckpt)
+    with pytest.raises(InputError, match=r"registration\.npz: registration checkpoint holds "
+                                         r"non-finite or non-float values in 'points'"):
+        RegistrationResult.load(ckpt)
+    with contextlib.redirect_stdout(so), contextlib.redirect_stderr(se):
+        assert main(argv) == 0, se.getvalue()
+    assert any(str(ckpt) in r.getMessage() and "step 1 runs again" in r.getMessage()
+               for r in caplog.records)
+    assert np.isfinite(RegistrationResult.load(ckpt).points).all()

@@ -33,7 +33,7 @@ from typing import Any, Literal
 import numpy as np
 
 from .config import PipelineConfig
-from .errors import OutputError
+from .errors import InputError, OutputError
 from .export import write_bvh, write_gltf
 from .io.outdir import OutputDir, fault_point
 from .output import build_skeleton, output_skeleton
@@ -239,7 +239,9 @@ def _step1(seq: PointSequence, config: PipelineConfig, od: OutputDir | None, res
                         od.carry(name)
                 break
         except Exception as exc:  # noqa: BLE001 - a stale or damaged checkpoint is recomputed
-            log.warning("ignoring registration checkpoint %s: %s", cand, exc)
+            why = exc.problem if isinstance(exc, InputError) else exc
+            log.warning("ignoring registration checkpoint %s (%s); step 1 runs again", cand,
+                        why)
     reused = reg is not None
     ckpt = None if od is None else od.staged(name)
     if reg is None:

@@ -21,6 +21,8 @@ import hashlib
 import json
 import logging
 import threading
+import zipfile
+import zlib
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass, field
@@ -123,7 +125,7 @@ class RegistrationResult:
         """
         try:
             with np.load(path, allow_pickle=False) as z:
-                return cls(
+                res = cls(
                     rest_points=z["rest_points"],
                     points=z["points"],
                     sigma2=z["sigma2"],
@@ -133,8 +135,14 @@ class RegistrationResult:
                     matched=z["matched"] if "matched" in z else np.zeros(0),
                     key=str(z["cache_key"]) if "cache_key" in z else "",
                 )
-        except (KeyError, ValueError, OSError) as exc:
+        except (KeyError, ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
             raise FormatError(f"not a registration checkpoint: {exc}", str(path)) from None
+        for name in ("rest_points", "points", "sigma2"):
+            arr = np.asarray(getattr(res, name))
+            if arr.dtype.kind != "f" or not np.isfinite(arr).all():
+                raise FormatError(f"registration checkpoint holds non-finite or non-float "
+                                  f"values in {name!r}", str(path))
+        return res
 
 
 @dataclass
