@@ -233,6 +233,21 @@ def _noise_from_args(args: argparse.Namespace):
     return replace(base, **over)
 
 
+def _check_synth_output(path: str, force: bool) -> None:
+    """Refuse, before rendering, an output that is a file or a non-empty folder (without
+    ``force``): writing the sequence replaces ``frames/frame_*.ply`` and ``gt.npz``."""
+    from pathlib import Path
+
+    from .errors import OutputError
+
+    out = Path(path)
+    if out.exists() and not out.is_dir():
+        raise OutputError("the output path is a file, not a folder", out)
+    if out.is_dir() and any(out.iterdir()) and not force:
+        raise OutputError("the output folder is not empty; pass --force to replace its "
+                          "frames/ and gt.npz", out)
+
+
 def cmd_synth(args: argparse.Namespace) -> int:
     """Render a synthetic depth-camera sequence with ground truth."""
     from .synth import FIGURES, Camera, synthesize
@@ -243,6 +258,7 @@ def cmd_synth(args: argparse.Namespace) -> int:
         return 0
     if args.source is None or args.output is None:
         raise ConfigError("give a SOURCE (figure name or .glb/.gltf) and -o OUTPUT")
+    _check_synth_output(args.output, args.force)
     seq = synthesize(
         args.source, n_frames=args.frames, seed=args.seed, camera=Camera.kinect(args.resolution),
         noise=_noise_from_args(args), fps=args.fps, speed=args.speed, amplitude=args.amplitude,
@@ -343,6 +359,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "or a rigged, animated .glb/.gltf")
     p.add_argument("-o", "--output", default=None, help="output folder (frames/ and gt.npz)")
     p.add_argument("--list", action="store_true", help="list the procedural figures")
+    p.add_argument("--force", action="store_true",
+                   help="write into a non-empty output folder, replacing its frames/ and gt.npz")
     p.add_argument("--frames", type=int, default=30, help="number of frames (default 30)")
     p.add_argument("--seed", type=int, default=0, help="motion and sampling seed")
     p.add_argument("--fps", type=float, default=30.0, help="frame rate, Hz (default 30)")
