@@ -37,7 +37,7 @@ from .errors import InputError, OutputError
 from .export import write_bvh, write_gltf
 from .io.outdir import OutputDir, fault_point
 from .output import build_skeleton, output_skeleton
-from .preprocess import remove_sparse_frames
+from .preprocess import OUTLIER_SUSPECT, remove_sparse_frames
 from .sequence import PointSequence, check_units
 from .skeleton import Skeleton
 
@@ -71,6 +71,13 @@ class ExtractResult:
     #: the ``F`` observed clouds ``(N_t, 3)`` after that clean-up, as steps 1-3 and the
     #: joint-depth pass read them (metres)
     frames: list[np.ndarray] | None = None
+    #: the clean-up's look at outliers (recorded in ``skeleton.json`` as ``source.outliers``):
+    #: ``suspect_frames`` (the frames that looked mostly like outliers, cleaned again against
+    #: their dense points), ``left_max`` (the largest fraction of a cleaned frame's points that
+    #: still look like outliers)
+    outliers: dict[str, Any] = field(default_factory=dict)
+    #: what the run warned about, one line each (also in ``skeleton.json`` ``source.warnings``)
+    warnings: list[str] = field(default_factory=list)
 
 
 def extract(
@@ -166,11 +173,12 @@ def _extract(seq: PointSequence, config: PipelineConfig, od: OutputDir | None, r
     out = None if od is None else od.stage
     timings: dict[str, float] = {}
     n_input = [int(c) for c in seq.counts]
-    seq, removed = _clean_input(seq, config, timings)
+    seq, removed, outliers, warnings = _clean_input(seq, config, timings)
     reg, reused, ckpt = _step1(seq, config, od, resume, timings, progress)
     fault_point("registered")
     result = ExtractResult(None, reg, timings=timings, reused_registration=reused,
-                           sparse_removed=removed, frames=list(seq.frames))
+                           sparse_removed=removed, frames=list(seq.frames), outliers=outliers,
+                           warnings=warnings)
     if ckpt is not None:
         result.files["registration"] = ckpt
     if stop_after == "registration":
@@ -202,18 +210,38 @@ def _report(progress: Progress | None, step: str) -> Callable[[int, int], None]:
 
 
 def _clean_input(seq: PointSequence, config: PipelineConfig, timings: dict[str, float]
-                 ) -> tuple[PointSequence, np.ndarray]:
+                 ) -> tuple[PointSequence, np.ndarray, dict[str, Any], list[str]]:
     """Input clean-up: sparse points (flying pixels, outliers) out of every frame
-    (:func:`pointrig.preprocess.remove_sparse_frames`); the cleaned sequence and the ``(F,)``
-    fraction of each frame's points removed. Its seconds go to ``timings["clean-up"]``."""
+    (:func:`pointrig.preprocess.remove_sparse_frames`); the cleaned sequence, the ``(F,)``
+    fraction of each frame's points removed, the outlier record of
+    :attr:`ExtractResult.outliers` and the warnings (logged) when frames look mostly like
+    outliers. Its seconds go to ``timings["clean-up"]``."""
     t0 = time.perf_counter()
+    report: dict[str, np.ndarray] = {}
     seq, removed = remove_sparse_frames(seq, config.preprocess.sparse_neighbors,
-                                        config.preprocess.sparse_ratio)
+                                        config.preprocess.sparse_ratio, report=report)
     timings["clean-up"] = time.perf_counter() - t0
     if removed.any():
         log.info("removed %.1f %% of the points as sparse (most %.1f %%, frame %d)",
                  100 * removed.mean(), 100 * removed.max(), int(np.argmax(removed)))
-    return seq, removed
+    suspect = np.flatnonzero(report["suspect"])
+    left = report["outliers_left"]
+    outliers = {"suspect_frames": [int(t) for t in suspect],
+                "left_max": round(float(left.max(initial=0.0)), 4)}
+    warnings = []
+    if len(suspect):
+        warnings.append(
+            f"{len(suspect)} of {len(seq)} frames looked mostly like outliers (a scatter of "
+            f"sparse points; first frame {int(suspect[0])}): cleaned again against their "
+            "densest points; check the input (crop the scene, the sensor's filters)")
+    if left.max(initial=0.0) > OUTLIER_SUSPECT:
+        t = int(np.argmax(left))
+        warnings.append(
+            f"frame {t} still looks mostly like outliers after the clean-up "
+            f"({100 * left[t]:.0f} % of its points): the skeleton is likely wrong")
+    for w in warnings:
+        log.warning("%s", w)
+    return seq, removed, outliers, warnings
 
 
 def _step1(seq: PointSequence, config: PipelineConfig, od: OutputDir | None, resume: bool,
@@ -316,7 +344,8 @@ def _write_outputs(out: Path, seq: PointSequence, reg: Any, result: ExtractResul
               "points_per_frame": n_input,
               "points_used_per_frame": [int(c) for c in seq.counts],
               "rest_frame": int((reg.params or {}).get("rest_frame_index", -1)),
-              "stopped_after": stop_after, **seq.meta}
+              "stopped_after": stop_after, "outliers": result.outliers,
+              "warnings": result.warnings, **seq.meta}
     params = config.to_dict()
     params["timings_s"] = {k: round(v, 3) for k, v in result.timings.items()}
     skel.save_json(out / "skeleton.json", source=source, params=params)
