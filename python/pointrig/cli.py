@@ -258,7 +258,8 @@ def cmd_synth(args: argparse.Namespace) -> int:
         return 0
     if args.source is None or args.output is None:
         raise ConfigError("give a SOURCE (figure name or .glb/.gltf) and -o OUTPUT")
-    _check_synth_output(args.output, args.force)
+    if args.source in FIGURES or args.source.lower().endswith((".glb", ".gltf", ".bvh")):
+        _check_synth_output(args.output, args.force)  # else synthesize names the bad source
     seq = synthesize(
         args.source, n_frames=args.frames, seed=args.seed, camera=Camera.kinect(args.resolution),
         noise=_noise_from_args(args), fps=args.fps, speed=args.speed, amplitude=args.amplitude,

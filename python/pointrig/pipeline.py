@@ -136,7 +136,7 @@ def _extract_into(od: OutputDir, seq: PointSequence, config: PipelineConfig, res
                   ) -> ExtractResult:
     """:func:`extract` into the locked output folder ``od``: the free space checked first,
     the outputs staged, then committed as one set."""
-    od.require_space(expected_output_bytes(seq, pictures))
+    od.require_space(expected_output_bytes(seq, pictures, config.registration.n_rest_points))
     result = _extract(seq, config, od, resume, stop_after, pictures, progress)
     fault_point("before-commit")
     try:
@@ -148,12 +148,16 @@ def _extract_into(od: OutputDir, seq: PointSequence, config: PipelineConfig, res
     return result
 
 
-def expected_output_bytes(seq: PointSequence, pictures: bool = True) -> int:
+def expected_output_bytes(seq: PointSequence, pictures: bool = True,
+                          n_rest_points: int | None = None) -> int:
     """A generous estimate of the bytes :func:`extract` writes for ``seq``: the registration
-    checkpoint, the weights and the glTF hold a few float64 3-vectors per template point and
-    frame (the template is at most a frame's size), plus the pictures."""
+    checkpoint, the weights and the glTF hold a few float64 3-vectors per rest point and frame
+    (``n_rest_points``, at most a frame's size), plus the pictures (their GIF a frame each)."""
     n = int(np.max(seq.counts)) if len(seq) else 0
-    return 48 * len(seq) * n + 64 * n + (8 << 20 if pictures else 0) + (1 << 20)
+    if n_rest_points is not None:
+        n = min(n, n_rest_points)
+    f = len(seq)
+    return 48 * f * n + 64 * n + ((8 << 20) + (64 << 10) * f if pictures else 0) + (1 << 20)
 
 
 @contextmanager
