@@ -276,3 +276,41 @@ def test_a_checkpoint_with_a_nan_is_named_and_recomputed(tmp_path: Path, caplog)
     assert any(str(ckpt) in r.getMessage() and "step 1 runs again" in r.getMessage()
                for r in caplog.records)
     assert np.isfinite(RegistrationResult.load(ckpt).points).all()
+
+
+def test_skip_bad_frames_leaves_them_out_and_keeps_the_indices(tmp_path: Path, caplog) -> None:
+    """``--skip-bad-frames``: a FIFO among the frames is left out with a warning; the
+    skeleton records each used frame's index, and ``evaluate`` scores against exactly those
+    ground-truth frames (the oracle: :func:`pointrig.evaluate.evaluate` on the GT frames
+    picked by hand)."""
+    from pointrig.evaluate import evaluate, evaluate_files, load_prediction
+    from pointrig.synth import NoiseConfig, synthesize
+    from pointrig.synth.scene import load_gt
+
+    seq = synthesize("arm", n_frames=5, seed=3, noise=NoiseConfig.clean())
+    root = seq.write(tmp_path / "arm")
+    bad = root / "frames" / "frame_0002.ply"
+    bad.unlink()
+    os.mkfifo(bad)
+    out = tmp_path / "out"
+    so, se = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(so), contextlib.redirect_stderr(se):
+        assert main(["extract", str(root / "frames"), "-o", str(out), "-q", "--no-pictures",
+                     "--stop-after", "structure"]) == 1
+        assert "frame_0002.ply: frame 2: a FIFO" in se.getvalue()
+        assert main(["extract", str(root / "frames"), "-o", str(out), "-q", "--no-pictures",
+                     "--stop-after", "structure", "--skip-bad-frames"]) == 0, se.getvalue()
+    assert any("leaving out frame 2" in r.getMessage() for r in caplog.records)
+    src = json.loads((out / "skeleton.json").read_text())["source"]
+    assert src["frame_indices"] == [0, 1, 3, 4] and src["frames"] == 4
+    assert [(s["frame"], s["file"]) for s in src["skipped_frames"]] == [(2, "frame_0002.ply")]
+    gt = load_gt(root / "gt.npz")
+    pred, names = load_prediction(out)
+    ref = evaluate(pred, gt["joints"][[0, 1, 3, 4]], gt["parents"], gt_names=gt["names"],
+                   pred_names=names, surface=gt["surface"][[0, 1, 3, 4]],
+                   surface_labels=gt.get("surface_labels"), skinned=gt.get("skinned"),
+                   bone_rotations=gt["bone_rotations"][[0, 1, 3, 4]],
+                   bone_translations=gt["bone_translations"][[0, 1, 3, 4]],
+                   rest_surface=gt.get("rest_surface"))
+    got = evaluate_files(out, root / "gt.npz")
+    assert got.to_dict() == ref.to_dict()

@@ -46,6 +46,9 @@ def _add_input_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--voxel", type=float, default=0.0, help="voxel downsampling size, metres")
     p.add_argument("--scale", type=float, default=1.0,
                    help="multiply coordinates to get metres (0.001 for millimetres)")
+    p.add_argument("--skip-bad-frames", action="store_true",
+                   help="leave out frame files that cannot be read, with a warning (recorded "
+                   "with each used frame's index in skeleton.json), instead of stopping")
     p.add_argument("--intrinsics", default=None,
                    help="camera intrinsics JSON for depth PNGs: fx, fy, cx, cy[, depth_scale] or "
                    "Open3D's intrinsic_matrix (default: intrinsics.json, intrinsic.json or "
@@ -58,7 +61,7 @@ def _read_input(args: argparse.Namespace):
     return read_sequence(
         args.input, start=args.start, stop=args.stop, stride=args.stride,
         crop_min=args.crop_min, crop_max=args.crop_max, voxel_size=args.voxel,
-        intrinsics=args.intrinsics, scale=args.scale,
+        intrinsics=args.intrinsics, scale=args.scale, skip_bad_frames=args.skip_bad_frames,
     )
 
 
@@ -152,6 +155,7 @@ def _read_configured(args: argparse.Namespace, cfg):
         args.input, start=pre.frame_start, stop=pre.frame_stop, stride=pre.frame_stride,
         crop_min=pre.crop_min, crop_max=pre.crop_max, voxel_size=pre.voxel_size,
         intrinsics=args.intrinsics, scale=args.scale, min_points=pre.min_points,
+        skip_bad_frames=args.skip_bad_frames,
     )
     # before the background search, whose thresholds are metres too (extract checks the
     # sequence it is given again: the Python API reaches it without this function)

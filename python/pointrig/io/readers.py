@@ -7,6 +7,7 @@ Every reader returns ``(N, 3)`` float64 points in metres and raises a subclass o
 from __future__ import annotations
 
 import json
+import logging
 import re
 import stat
 import zipfile
@@ -18,6 +19,8 @@ import numpy as np
 
 from ..errors import ConfigError, EmptyFrameError, FormatError, InputError
 from ..sequence import MAX_COORD, PointSequence
+
+log = logging.getLogger(__name__)
 
 __all__ = ["FRAME_FORMATS", "detect_format", "read_frame", "read_sequence", "natural_key",
            "read_intrinsics", "find_intrinsics", "INTRINSICS_NAMES", "depth_to_points",
@@ -656,6 +659,7 @@ def read_sequence(
     scale: float = 1.0,
     min_points: int = 1,
     min_frames: int = 2,
+    skip_bad_frames: bool = False,
 ) -> PointSequence:
     """Read a point-cloud sequence.
 
@@ -680,6 +684,11 @@ def read_sequence(
         Frames with fewer points (after crop/downsampling) raise :class:`EmptyFrameError`.
     min_frames
         Fewer frames raise :class:`InputError` (the method needs motion).
+    skip_bad_frames
+        A frame file that cannot be read (of a folder) is left out with a warning instead of
+        an error; ``meta["frame_indices"]`` then gives each frame read its index among the
+        folder's frames (naturally sorted, before ``start``/``stride``), and
+        ``meta["skipped_frames"]`` each one left out: ``{"frame", "file", "problem"}``.
 
     Returns
     -------
@@ -703,6 +712,7 @@ def read_sequence(
     else:
         files = sorted((f for f in _frame_entries(p) if FRAME_FORMATS[f.suffix.lower()] == fmt),
                        key=lambda f: natural_key(f.name))
+        positions = list(range(len(files)))[start:stop:stride]
         files = files[start:stop:stride]
         intr = None
         if fmt == "depth-png":
@@ -713,8 +723,20 @@ def read_sequence(
                 intr = read_intrinsics(intr_path)
             meta["intrinsics"] = {"path": None if intr_path is None else str(intr_path),
                                   **{k: float(v) for k, v in intr.items()}}
-        frames = [_read_frame_at(f, intr, i) for i, f in enumerate(files)]
-        names = [f.name for f in files]
+        frames, names, kept, skipped = [], [], [], []
+        for i, (f, pos) in enumerate(zip(files, positions)):
+            try:
+                frames.append(_read_frame_at(f, intr, i))
+            except InputError as exc:
+                if not skip_bad_frames:
+                    raise
+                log.warning("leaving out frame %d: %s", pos, exc)
+                skipped.append({"frame": pos, "file": f.name, "problem": exc.problem})
+                continue
+            names.append(f.name)
+            kept.append(pos)
+        if skip_bad_frames:
+            meta.update(frame_indices=kept, skipped_frames=skipped)
     if len(frames) < min_frames:
         raise InputError(f"sequence has {len(frames)} frame(s) after frame selection; "
                          f"at least {min_frames} are needed", p)
