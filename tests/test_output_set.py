@@ -14,7 +14,9 @@ import errno
 import hashlib
 import io
 import json
+import logging
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -77,11 +79,12 @@ def test_a_complete_set_is_named_by_its_manifest(complete):
     assert not (complete / STAGING).exists()
 
 
-def _killed_run(seq_dir: Path, out: Path, point: str, *extra: str) -> subprocess.CompletedProcess:
+def _killed_run(seq_dir: Path, out: Path, point: str, *extra: str, stop: str | None = "3"
+                ) -> subprocess.CompletedProcess:
     env = dict(os.environ, **{FAULT_ENV: point})
-    # two frames fewer than the complete set: every output differs from it
+    # by default a frame fewer than the complete set: every output differs from it
     cmd = [sys.executable, "-m", "pointrig", "extract", str(seq_dir), "-o", str(out), "-q",
-           "--stop", "3", *extra]
+           *(["--stop", stop] if stop else []), *extra]
     return subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=600)
 
 
@@ -209,3 +212,42 @@ def test_stale_temporary_files_are_removed(seq_dir, complete, tmp_path):
         assert not (out / STAGING / "skeleton.json").exists()
     assert (out / "notes.txt").read_text() == "the user's own file\n"
     assert json.loads((out / MANIFEST).read_text())["format"] == "pointrig.outputs/1"
+
+
+def test_a_step_1_killed_midway_resumes_to_the_same_registration(tmp_path, caplog):
+    """Killed right after step 1 saved its frames so far (every 10 frames), the next run
+    registers only the rest and writes the registration an uninterrupted run writes."""
+    import numpy as np
+
+    from pointrig.registration import RegistrationResult
+
+    seq = synthesize("arm", n_frames=14, seed=5, noise=NoiseConfig())
+    frames = seq.write(tmp_path / "arm") / "frames"
+    whole, out = tmp_path / "whole", tmp_path / "out"
+    code, _, err = _run(["extract", str(frames), "-o", str(whole), "-q", "--stop-after",
+                         "registration"])
+    assert code == 0, err
+    run = _killed_run(frames, out, "step1-saved", "--stop-after", "registration", stop=None)
+    assert run.returncode == -9, run.stderr
+    assert (out / STAGING / "registration.partial.npz").is_file()
+    assert not (out / "registration.npz").exists()
+    caplog.set_level(logging.INFO, logger="pointrig.pipeline")
+    code, _, err = _run(["extract", str(frames), "-o", str(out), "-q", "--stop",
+                         "3", "--stop-after", "registration"])
+    assert code == 0, err
+    # (another frame range: the partial state's key does not match and is not used)
+    assert "resuming step 1" not in caplog.text
+    shutil.rmtree(out)
+    run = _killed_run(frames, out, "step1-saved", "--stop-after", "registration", stop=None)
+    assert run.returncode == -9
+    caplog.clear()
+    code, _, err = _run(["extract", str(frames), "-o", str(out), "-q", "--stop-after",
+                         "registration"])
+    assert code == 0, err
+    assert re.search(r"resuming step 1 from .* \((1[0-3]) frames registered\)", caplog.text)
+    a = RegistrationResult.load(whole / "registration.npz")
+    b = RegistrationResult.load(out / "registration.npz")
+    for name in ("rest_points", "points", "sigma2", "iterations", "energy", "matched"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+    assert set(_check_manifest(out)) == {"registration.npz"}
+    assert not (out / STAGING).exists()

@@ -23,6 +23,7 @@ output tree, splits, joint depth, bone rolls) is :mod:`pointrig.output`;
 from __future__ import annotations
 
 import logging
+import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -35,7 +36,7 @@ import numpy as np
 from .config import PipelineConfig
 from .errors import InputError, OutputError
 from .export import write_bvh, write_gltf
-from .io.outdir import OutputDir, fault_point
+from .io.outdir import PARTIAL, OutputDir, fault_point
 from .output import build_skeleton, output_skeleton
 from .preprocess import OUTLIER_SUSPECT, remove_sparse_frames
 from .sequence import PointSequence, check_units
@@ -277,13 +278,59 @@ def _step1(seq: PointSequence, config: PipelineConfig, od: OutputDir | None, res
     reused = reg is not None
     ckpt = None if od is None else od.staged(name)
     if reg is None:
+        partial, on_frame = _step1_partial(seq, config, od, resume)
         reg = reg_mod.register_sequence(seq, config.registration,
-                                        progress=_report(progress, "registration"))
+                                        progress=_report(progress, "registration"),
+                                        partial=partial, on_frame=on_frame)
         if ckpt is not None:
             with _writing(od.path):
                 reg.save(ckpt)
+            od.staged(PARTIAL).unlink(missing_ok=True)
     timings["registration"] = time.perf_counter() - t0
     return reg, reused, ckpt
+
+
+#: Step 1 saves the frames registered so far (``registration.partial.npz`` in the staging
+#: folder) after every this many frames, so that an interrupted run resumes where it stopped.
+STEP1_CHECKPOINT_EVERY = 10
+
+
+def _step1_partial(seq: PointSequence, config: PipelineConfig, od: OutputDir | None,
+                   resume: bool) -> tuple[Any, Callable[[Any], None] | None]:
+    """The frames an interrupted step 1 registered (its ``registration.partial.npz``, when its
+    key matches and ``resume``) and the callback that saves the state every
+    :data:`STEP1_CHECKPOINT_EVERY` frames (``None`` without ``od``)."""
+    from . import registration as reg_mod
+
+    key = reg_mod.cache_key(seq, config.registration)
+    partial = reg_mod.PartialRegistration(key)
+    if od is None:
+        return partial, None
+    for cand in od.resume_candidates(PARTIAL) if resume else []:
+        try:
+            found = reg_mod.PartialRegistration.load(cand)
+        except InputError as exc:
+            log.warning("ignoring partial registration %s (%s)", cand, exc.problem)
+            continue
+        if found.key == key:
+            partial = found
+            log.info("resuming step 1 from %s (%d frames registered)", cand, found.n_frames())
+            break
+    path = od.staged(PARTIAL)
+    saving = threading.Lock()
+    last = [partial.n_frames()]
+
+    def on_frame(state: Any) -> None:
+        with saving:
+            n = state.n_frames()
+            if n - last[0] < STEP1_CHECKPOINT_EVERY:
+                return
+            with _writing(od.path):
+                state.save(path)
+            last[0] = n
+            fault_point("step1-saved")
+
+    return partial, on_frame
 
 
 def _step2(rest_points: np.ndarray, points: np.ndarray, config: PipelineConfig,

@@ -30,7 +30,7 @@ from typing import IO
 from ..errors import OutputError
 from .atomic import write_json
 
-__all__ = ["FAULT_ENV", "LOCK", "MANIFEST", "MANIFEST_FORMAT", "STAGING", "OutputDir",
+__all__ = ["FAULT_ENV", "LOCK", "MANIFEST", "MANIFEST_FORMAT", "PARTIAL", "STAGING", "OutputDir",
            "check_output_dir", "fault_point", "read_manifest"]
 
 #: the file that names the complete set of outputs, written last
@@ -43,8 +43,12 @@ LOCK = ".pointrig.lock"
 #: the staging folder's record of the files of earlier sets that a commit replaces (read by
 #: the next commit when this one was interrupted: no manifest then names them)
 REPLACED = ".replaced.json"
+#: the frames an interrupted step 1 registered, in the staging folder (never committed)
+PARTIAL = "registration.partial.npz"
+#: files of the staging folder that are not outputs
+PRIVATE = (REPLACED, PARTIAL)
 #: files of the staging folder that an interrupted run leaves for the next one
-KEEP_ON_RESTART = ("registration.npz", REPLACED)
+KEEP_ON_RESTART = ("registration.npz", *PRIVATE)
 #: the temporary files of :func:`pointrig.io.atomic.atomic_path`: ``.NAME.XXXXXXXX[SUFFIX]``
 _ATOMIC_TEMP = re.compile(r"^\.(?P<name>.+)\.[a-z0-9_]{8}(?P<suffix>\.[A-Za-z0-9]+)?$")
 
@@ -251,7 +255,8 @@ class OutputDir:
     def commit(self) -> dict[str, Path]:
         """Move every file of the staging folder into the output folder and write the
         manifest naming them. Returns ``{name: final path}``."""
-        names = sorted(p.name for p in self.stage.iterdir() if p.is_file() and p.name != REPLACED)
+        names = sorted(p.name for p in self.stage.iterdir()
+                       if p.is_file() and p.name not in PRIVATE)
         entries = {n: {"bytes": (self.stage / n).stat().st_size,
                        "sha256": _sha256(self.stage / n)} for n in names}
         old = set(read_manifest(self.path)) | self._replaced()
