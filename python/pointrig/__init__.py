@@ -23,6 +23,7 @@ from .errors import (
     FormatError,
     InputError,
     NumericalError,
+    OutputError,
     PointrigError,
     TrackingLostError,
 )
@@ -62,6 +63,7 @@ __all__ = [
     "JointsConfig",
     "JointsResult",
     "NumericalError",
+    "OutputError",
     "PipelineConfig",
     "PointSequence",
     "PointrigError",

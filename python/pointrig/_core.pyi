@@ -1,8 +1,9 @@
 """Type stubs for the private native module ``pointrig._core`` (hand-written).
 
-All point arrays are float64, C-contiguous, shape ``(n, 3)``, metres. Functions raise
-``ValueError`` on wrong shapes or non-contiguous input and
-``pointrig.errors.InputError`` on NaN/inf values.
+All point arrays are float64, C-contiguous, shape ``(n, 3)``, metres, with coordinates
+within 1e12 m of the origin. Functions raise ``pointrig.errors.InputError`` (a ``ValueError``)
+on wrong shapes or sizes, non-contiguous arrays, NaN/inf values or coordinates beyond that;
+no input makes them panic or abort.
 """
 
 import numpy as np

@@ -68,6 +68,9 @@ def _add_input_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--voxel", type=float, default=0.0, help="voxel downsampling size, metres")
     p.add_argument("--scale", type=float, default=1.0,
                    help="multiply coordinates to get metres (0.001 for millimetres)")
+    p.add_argument("--skip-bad-frames", action="store_true",
+                   help="leave out frame files that cannot be read, with a warning (recorded "
+                   "with each used frame's index in skeleton.json), instead of stopping")
     p.add_argument("--intrinsics", default=None,
                    help="camera intrinsics JSON for depth PNGs: fx, fy, cx, cy[, depth_scale] or "
                    "Open3D's intrinsic_matrix (default: intrinsics.json, intrinsic.json or "
@@ -87,6 +90,7 @@ def _read_input(args: argparse.Namespace, min_frames: int = 2):
         args.input, start=args.start, stop=args.stop, stride=args.stride,
         crop_min=args.crop_min, crop_max=args.crop_max, voxel_size=args.voxel,
         intrinsics=args.intrinsics, scale=args.scale, min_frames=min_frames,
+        skip_bad_frames=args.skip_bad_frames,
         topic=args.topic, isolation=_isolation(args),
     )
 
@@ -212,6 +216,7 @@ def _read_configured(args: argparse.Namespace, cfg):
         crop_min=pre.crop_min, crop_max=pre.crop_max, voxel_size=pre.voxel_size,
         intrinsics=args.intrinsics, scale=args.scale, min_points=pre.min_points,
         topic=args.topic, isolation=_isolation(args),
+        skip_bad_frames=args.skip_bad_frames,
     )
     # before the background search, whose thresholds are metres too (extract checks the
     # sequence it is given again: the Python API reaches it without this function)
@@ -238,14 +243,17 @@ def _summary_line(res, out, input_s: float | None = None) -> str:
 
 def cmd_extract(args: argparse.Namespace) -> int:
     """Run the pipeline on a sequence."""
+    from .io.outdir import OutputDir
     from .pipeline import extract
 
     cfg = _config_from_args(args)
-    t0 = time.perf_counter()
-    seq = _read_configured(args, cfg)
-    input_s = time.perf_counter() - t0
-    res = extract(seq, cfg, args.output, resume=args.resume, stop_after=args.stop_after,
-                  pictures=not args.no_pictures, progress=_ProgressPrinter(args.quiet))
+    # the output folder checked and locked before the input is read
+    with OutputDir(args.output) as od:
+        t0 = time.perf_counter()
+        seq = _read_configured(args, cfg)
+        input_s = time.perf_counter() - t0
+        res = extract(seq, cfg, od, resume=args.resume, stop_after=args.stop_after,
+                      pictures=not args.no_pictures, progress=_ProgressPrinter(args.quiet))
     if res.skeleton is None:
         print(f"registration written to {res.files.get('registration')}")
     else:
@@ -290,6 +298,21 @@ def _noise_from_args(args: argparse.Namespace):
     return replace(base, **over)
 
 
+def _check_synth_output(path: str, force: bool) -> None:
+    """Refuse, before rendering, an output that is a file or a non-empty folder (without
+    ``force``): writing the sequence replaces ``frames/frame_*.ply`` and ``gt.npz``."""
+    from pathlib import Path
+
+    from .errors import OutputError
+
+    out = Path(path)
+    if out.exists() and not out.is_dir():
+        raise OutputError("the output path is a file, not a folder", out)
+    if out.is_dir() and any(out.iterdir()) and not force:
+        raise OutputError("the output folder is not empty; pass --force to replace its "
+                          "frames/ and gt.npz", out)
+
+
 def cmd_synth(args: argparse.Namespace) -> int:
     """Render a synthetic depth-camera sequence with ground truth."""
     from .synth import FIGURES, Camera, synthesize
@@ -300,6 +323,8 @@ def cmd_synth(args: argparse.Namespace) -> int:
         return 0
     if args.source is None or args.output is None:
         raise ConfigError("give a SOURCE (figure name or .glb/.gltf) and -o OUTPUT")
+    if args.source in FIGURES or args.source.lower().endswith((".glb", ".gltf", ".bvh")):
+        _check_synth_output(args.output, args.force)  # else synthesize names the bad source
     seq = synthesize(
         args.source, n_frames=args.frames, seed=args.seed, camera=Camera.kinect(args.resolution),
         noise=_noise_from_args(args), fps=args.fps, speed=args.speed, amplitude=args.amplitude,
@@ -410,6 +435,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "or a rigged, animated .glb/.gltf")
     p.add_argument("-o", "--output", default=None, help="output folder (frames/ and gt.npz)")
     p.add_argument("--list", action="store_true", help="list the procedural figures")
+    p.add_argument("--force", action="store_true",
+                   help="write into a non-empty output folder, replacing its frames/ and gt.npz")
     p.add_argument("--frames", type=int, default=30, help="number of frames (default 30)")
     p.add_argument("--seed", type=int, default=0, help="motion and sampling seed")
     p.add_argument("--fps", type=float, default=30.0, help="frame rate, Hz (default 30)")

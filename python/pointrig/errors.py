@@ -2,9 +2,9 @@
 
 Every error pointrig raises on purpose derives from :class:`PointrigError`. The Rust core's
 error enum (``rust/core/error.rs``) maps onto these classes in one place
-(``rust/py/mod.rs::to_pyerr``): ``NonFinite`` -> :class:`InputError`, ``Convergence`` ->
-:class:`ConvergenceError`, ``Numerical`` -> :class:`NumericalError`, ``InvalidInput`` ->
-``ValueError``.
+(``rust/py/mod.rs::to_pyerr``): ``InvalidInput`` (a bad shape, size or value, coordinates
+beyond 1e12 m) and ``NonFinite`` -> :class:`InputError`, ``Convergence`` ->
+:class:`ConvergenceError`, ``Numerical`` -> :class:`NumericalError`.
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ __all__ = [
     "ConvergenceError",
     "NumericalError",
     "TrackingLostError",
+    "OutputError",
 ]
 
 
@@ -75,3 +76,24 @@ class NumericalError(PointrigError, ArithmeticError):
 
 class TrackingLostError(PointrigError, RuntimeError):
     """Registration lost the subject (almost no data mass matched the template)."""
+
+
+class OutputError(PointrigError, OSError):
+    """An output folder that cannot take the results: a file in its place, not writable, too
+    little free space, a write that failed, or another run writing into it.
+
+    Parameters
+    ----------
+    message
+        What is wrong.
+    path
+        The output folder or file concerned, if any.
+    """
+
+    def __init__(self, message: str, path: str | Path | None = None):
+        self.path = None if path is None else Path(path)
+        self.problem = message
+        super().__init__(f"{path}: {message}" if path is not None else message)
+
+    def __str__(self) -> str:
+        return self.args[0]

@@ -62,6 +62,7 @@ it only through an error of its own.
 from __future__ import annotations
 
 import dataclasses
+import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -728,18 +729,39 @@ def load_prediction(path: str | Path) -> tuple[np.ndarray, list[str]]:
     return joints, names
 
 
+def _recorded_frames(pred_path: str | Path) -> np.ndarray | None:
+    """``source.frame_indices`` of a ``skeleton.json`` (or of the one in a folder), if any."""
+    p = Path(pred_path)
+    p = p / "skeleton.json" if p.is_dir() else p
+    if p.suffix.lower() != ".json":
+        return None
+    try:
+        idx = json.loads(p.read_text()).get("source", {}).get("frame_indices")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return None if idx is None else np.asarray(idx, dtype=np.int64)
+
+
 def evaluate_files(pred_path: str | Path, gt_path: str | Path, *, start: int = 0,
                    stop: int | None = None, stride: int = 1, **kwargs: Any) -> EvalReport:
     """:func:`evaluate` a ``skeleton.json`` against a ``gt.npz`` (or their folders).
 
     ``start, stop, stride`` select the ground-truth frames that the prediction was made from
-    (as ``pointrig extract --start/--stop/--stride``).
+    (as ``pointrig extract --start/--stop/--stride``). A ``skeleton.json`` that records its
+    frames (``source.frame_indices``, written when ``--skip-bad-frames`` left some out) selects
+    them itself.
     """
     from .synth.scene import load_gt
 
     pred, pred_names = load_prediction(pred_path)
     gt = load_gt(gt_path)
-    sl = slice(start, stop, stride)
+    sl: slice | np.ndarray = slice(start, stop, stride)
+    recorded = _recorded_frames(pred_path)
+    if recorded is not None:
+        if (start, stop, stride) != (0, None, 1):
+            raise ConfigError("the prediction records the frames it was made from "
+                              "(source.frame_indices); leave out --start/--stop/--stride")
+        sl = recorded
     surf = gt.get("surface")
     Rb, Tb = gt.get("bone_rotations"), gt.get("bone_translations")
     return evaluate(pred, gt["joints"][sl], gt["parents"], gt_names=gt["names"],

@@ -2,7 +2,9 @@
 
 :func:`extract` runs the steps with a registration checkpoint (reused when the input and the
 step-1 parameters match, so changing a later step's parameter does not redo step 1) and
-writes the outputs atomically:
+writes the outputs as one set, whole or absent (:class:`pointrig.io.outdir.OutputDir`: every
+file is staged, then moved into the folder and named in ``manifest.json``, written last; the
+folder is checked and locked before step 1):
 
 - ``skeleton.json``  the ``pointrig.skeleton/1`` contract (see the README);
 - ``weights.npz``    rest points, skinning weights ``(M, B)``, labels, bone transforms;
@@ -10,7 +12,8 @@ writes the outputs atomically:
 - ``skeleton.bvh``   the animated skeleton as motion capture (Blender, MotionBuilder);
 - ``skeleton.glb``   glTF 2.0: joints, skin, the rest points as a skinned point mesh and the
   animation (Blender, Godot, Unity, three.js), see :func:`pointrig.export.write_gltf`;
-- ``skeleton.png``, ``skeleton.gif``  pictures (optional).
+- ``skeleton.png``, ``skeleton.gif``  pictures (optional);
+- ``manifest.json``  the files of the set with their sizes and SHA-256, written last.
 
 The output stage that turns step 3's bones into the written skeleton (joint selection,
 output tree, splits, joint depth, bone rolls) is :mod:`pointrig.output`;
@@ -20,8 +23,10 @@ output tree, splits, joint depth, bone rolls) is :mod:`pointrig.output`;
 from __future__ import annotations
 
 import logging
+import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -29,13 +34,16 @@ from typing import Any, Literal
 import numpy as np
 
 from .config import PipelineConfig
+from .errors import InputError, OutputError
 from .export import write_bvh, write_gltf
+from .io.outdir import PARTIAL, OutputDir, fault_point
 from .output import build_skeleton, output_skeleton
-from .preprocess import remove_sparse_frames
+from .preprocess import OUTLIER_SUSPECT, remove_sparse_frames
 from .sequence import PointSequence, check_units
 from .skeleton import Skeleton
 
-__all__ = ["ExtractResult", "build_skeleton", "extract", "output_skeleton"]
+__all__ = ["ExtractResult", "build_skeleton", "expected_output_bytes", "extract",
+           "output_skeleton"]
 
 log = logging.getLogger(__name__)
 
@@ -64,12 +72,19 @@ class ExtractResult:
     #: the ``F`` observed clouds ``(N_t, 3)`` after that clean-up, as steps 1-3 and the
     #: joint-depth pass read them (metres)
     frames: list[np.ndarray] | None = None
+    #: the clean-up's look at outliers (recorded in ``skeleton.json`` as ``source.outliers``):
+    #: ``suspect_frames`` (the frames that looked mostly like outliers, cleaned again against
+    #: their dense points), ``left_max`` (the largest fraction of a cleaned frame's points that
+    #: still look like outliers)
+    outliers: dict[str, Any] = field(default_factory=dict)
+    #: what the run warned about, one line each (also in ``skeleton.json`` ``source.warnings``)
+    warnings: list[str] = field(default_factory=list)
 
 
 def extract(
     seq: PointSequence,
     config: PipelineConfig | None = None,
-    out_dir: str | Path | None = None,
+    out_dir: str | Path | OutputDir | None = None,
     *,
     resume: bool = True,
     stop_after: StopAfter = "joints",
@@ -85,9 +100,11 @@ def extract(
     config
         All parameters (default: Table 1 defaults and pointrig's improvements).
     out_dir
-        Output folder; ``None`` writes nothing.
+        Output folder (or one already opened, :class:`pointrig.io.outdir.OutputDir`);
+        ``None`` writes nothing.
     resume
-        Reuse ``out_dir/registration.npz`` when its key (input + step-1 parameters) matches.
+        Reuse ``out_dir/registration.npz`` (or the one an interrupted run into ``out_dir``
+        left) when its key (input + step-1 parameters) matches.
     stop_after
         ``"registration"``, ``"structure"`` (write the step-2 skeleton) or ``"joints"``.
     pictures
@@ -100,16 +117,73 @@ def extract(
     InputError
         When a frame spans more than ``config.preprocess.max_extent`` metres (input not in
         metres, :func:`pointrig.sequence.check_units`), before anything is written.
+    OutputError
+        Before step 1, when ``out_dir`` is a file, not writable, short of free space or
+        locked by another run; later, when a write fails (the folder's previous set stays).
     """
     config = config or PipelineConfig()
     check_units(seq, config.preprocess.max_extent)
-    out = None if out_dir is None else Path(out_dir)
+    args = (resume, stop_after, pictures, progress)
+    if out_dir is None:
+        return _extract(seq, config, None, *args)
+    if isinstance(out_dir, OutputDir):  # already checked and locked by the caller
+        return _extract_into(out_dir, seq, config, *args)
+    with OutputDir(out_dir) as od:
+        return _extract_into(od, seq, config, *args)
+
+
+def _extract_into(od: OutputDir, seq: PointSequence, config: PipelineConfig, resume: bool,
+                  stop_after: StopAfter, pictures: bool, progress: Progress | None
+                  ) -> ExtractResult:
+    """:func:`extract` into the locked output folder ``od``: the free space checked first,
+    the outputs staged, then committed as one set."""
+    od.require_space(expected_output_bytes(seq, pictures, config.registration.n_rest_points))
+    result = _extract(seq, config, od, resume, stop_after, pictures, progress)
+    fault_point("before-commit")
+    try:
+        final = od.commit()
+    except OSError as exc:
+        raise OutputError(f"cannot move the outputs into place: {exc.strerror or exc}",
+                          od.path) from None
+    result.files = {key: final[path.name] for key, path in result.files.items()}
+    return result
+
+
+def expected_output_bytes(seq: PointSequence, pictures: bool = True,
+                          n_rest_points: int | None = None) -> int:
+    """A generous estimate of the bytes :func:`extract` writes for ``seq``: the registration
+    checkpoint, the weights and the glTF hold a few float64 3-vectors per rest point and frame
+    (``n_rest_points``, at most a frame's size), plus the pictures (their GIF a frame each)."""
+    n = int(np.max(seq.counts)) if len(seq) else 0
+    if n_rest_points is not None:
+        n = min(n, n_rest_points)
+    f = len(seq)
+    return 48 * f * n + 64 * n + ((8 << 20) + (64 << 10) * f if pictures else 0) + (1 << 20)
+
+
+@contextmanager
+def _writing(out: Path) -> Iterator[None]:
+    """Turn a failed write (a full disk, a permission) into one :class:`OutputError` line."""
+    try:
+        yield
+    except OSError as exc:
+        if isinstance(exc, OutputError):
+            raise
+        raise OutputError(f"cannot write the outputs: {exc.strerror or exc}", out) from None
+
+
+def _extract(seq: PointSequence, config: PipelineConfig, od: OutputDir | None, resume: bool,
+             stop_after: StopAfter, pictures: bool, progress: Progress | None) -> ExtractResult:
+    """The body of :func:`extract`; outputs go to ``od``'s staging folder (none without)."""
+    out = None if od is None else od.stage
     timings: dict[str, float] = {}
     n_input = [int(c) for c in seq.counts]
-    seq, removed = _clean_input(seq, config, timings)
-    reg, reused, ckpt = _step1(seq, config, out, resume, timings, progress)
+    seq, removed, outliers, warnings = _clean_input(seq, config, timings)
+    reg, reused, ckpt = _step1(seq, config, od, resume, timings, progress)
+    fault_point("registered")
     result = ExtractResult(None, reg, timings=timings, reused_registration=reused,
-                           sparse_removed=removed, frames=list(seq.frames))
+                           sparse_removed=removed, frames=list(seq.frames), outliers=outliers,
+                           warnings=warnings)
     if ckpt is not None:
         result.files["registration"] = ckpt
     if stop_after == "registration":
@@ -130,7 +204,8 @@ def extract(
         st.view_camera, observed=(seq.frames, final.points) if stop_after == "joints" else None,
         timings=timings)
     if out is not None:
-        _write_outputs(out, seq, reg, result, config, stop_after, n_input, pictures)
+        with _writing(out):
+            _write_outputs(out, seq, reg, result, config, stop_after, n_input, pictures)
     return result
 
 
@@ -140,47 +215,122 @@ def _report(progress: Progress | None, step: str) -> Callable[[int, int], None]:
 
 
 def _clean_input(seq: PointSequence, config: PipelineConfig, timings: dict[str, float]
-                 ) -> tuple[PointSequence, np.ndarray]:
+                 ) -> tuple[PointSequence, np.ndarray, dict[str, Any], list[str]]:
     """Input clean-up: sparse points (flying pixels, outliers) out of every frame
-    (:func:`pointrig.preprocess.remove_sparse_frames`); the cleaned sequence and the ``(F,)``
-    fraction of each frame's points removed. Its seconds go to ``timings["clean-up"]``."""
+    (:func:`pointrig.preprocess.remove_sparse_frames`); the cleaned sequence, the ``(F,)``
+    fraction of each frame's points removed, the outlier record of
+    :attr:`ExtractResult.outliers` and the warnings (logged) when frames look mostly like
+    outliers. Its seconds go to ``timings["clean-up"]``."""
     t0 = time.perf_counter()
+    report: dict[str, np.ndarray] = {}
     seq, removed = remove_sparse_frames(seq, config.preprocess.sparse_neighbors,
-                                        config.preprocess.sparse_ratio)
+                                        config.preprocess.sparse_ratio, report=report)
     timings["clean-up"] = time.perf_counter() - t0
     if removed.any():
         log.info("removed %.1f %% of the points as sparse (most %.1f %%, frame %d)",
                  100 * removed.mean(), 100 * removed.max(), int(np.argmax(removed)))
-    return seq, removed
+    suspect = np.flatnonzero(report["suspect"])
+    left = report["outliers_left"]
+    outliers = {"suspect_frames": [int(t) for t in suspect],
+                "left_max": round(float(left.max(initial=0.0)), 4)}
+    warnings = []
+    if len(suspect):
+        warnings.append(
+            f"{len(suspect)} of {len(seq)} frames looked mostly like outliers (a scatter of "
+            f"sparse points; first frame {int(suspect[0])}): cleaned again against their "
+            "densest points; check the input (crop the scene, the sensor's filters)")
+    if left.max(initial=0.0) > OUTLIER_SUSPECT:
+        t = int(np.argmax(left))
+        warnings.append(
+            f"frame {t} still looks mostly like outliers after the clean-up "
+            f"({100 * left[t]:.0f} % of its points): the skeleton is likely wrong")
+    for w in warnings:
+        log.warning("%s", w)
+    return seq, removed, outliers, warnings
 
 
-def _step1(seq: PointSequence, config: PipelineConfig, out: Path | None, resume: bool,
+def _step1(seq: PointSequence, config: PipelineConfig, od: OutputDir | None, resume: bool,
            timings: dict[str, float], progress: Progress | None) -> tuple[Any, bool, Path | None]:
-    """Step 1, registration (§4), with its checkpoint ``out/registration.npz``: reused when its
-    key (input + step-1 parameters) matches and ``resume``, else computed and written. Returns
-    the registration, whether it was reused, and the checkpoint's path (``None`` without
-    ``out``). Its seconds go to ``timings["registration"]``."""
+    """Step 1, registration (§4), with its checkpoint ``registration.npz``: the one an
+    interrupted run staged or the committed one in the output folder is reused when its key
+    (input + step-1 parameters) matches and ``resume``, else step 1 runs and its checkpoint is
+    staged. Returns the registration, whether it was reused, and the staged checkpoint's path
+    (``None`` without ``od``). Its seconds go to ``timings["registration"]``."""
     from . import registration as reg_mod
 
     t0 = time.perf_counter()
     reg = None
-    ckpt = None if out is None else out / "registration.npz"
-    if resume and ckpt is not None and ckpt.exists():
+    name = "registration.npz"
+    for cand in (od.resume_candidates(name) if od is not None and resume else []):
         try:
-            cached = reg_mod.RegistrationResult.load(ckpt)
+            cached = reg_mod.RegistrationResult.load(cand)
             if cached.key == reg_mod.cache_key(seq, config.registration):
                 reg = cached
-                log.info("reusing registration checkpoint %s", ckpt)
+                log.info("reusing registration checkpoint %s", cand)
+                if cand.parent != od.stage:
+                    with _writing(od.path):
+                        od.carry(name)
+                break
         except Exception as exc:  # noqa: BLE001 - a stale or damaged checkpoint is recomputed
-            log.warning("ignoring registration checkpoint %s: %s", ckpt, exc)
+            why = exc.problem if isinstance(exc, InputError) else exc
+            log.warning("ignoring registration checkpoint %s (%s); step 1 runs again", cand,
+                        why)
     reused = reg is not None
+    ckpt = None if od is None else od.staged(name)
     if reg is None:
+        partial, on_frame = _step1_partial(seq, config, od, resume)
         reg = reg_mod.register_sequence(seq, config.registration,
-                                        progress=_report(progress, "registration"))
+                                        progress=_report(progress, "registration"),
+                                        partial=partial, on_frame=on_frame)
         if ckpt is not None:
-            reg.save(ckpt)
+            with _writing(od.path):
+                reg.save(ckpt)
+            od.staged(PARTIAL).unlink(missing_ok=True)
     timings["registration"] = time.perf_counter() - t0
     return reg, reused, ckpt
+
+
+#: Step 1 saves the frames registered so far (``registration.partial.npz`` in the staging
+#: folder) after every this many frames, so that an interrupted run resumes where it stopped.
+STEP1_CHECKPOINT_EVERY = 10
+
+
+def _step1_partial(seq: PointSequence, config: PipelineConfig, od: OutputDir | None,
+                   resume: bool) -> tuple[Any, Callable[[Any], None] | None]:
+    """The frames an interrupted step 1 registered (its ``registration.partial.npz``, when its
+    key matches and ``resume``) and the callback that saves the state every
+    :data:`STEP1_CHECKPOINT_EVERY` frames (``None`` without ``od``)."""
+    from . import registration as reg_mod
+
+    key = reg_mod.cache_key(seq, config.registration)
+    partial = reg_mod.PartialRegistration(key)
+    if od is None:
+        return partial, None
+    for cand in od.resume_candidates(PARTIAL) if resume else []:
+        try:
+            found = reg_mod.PartialRegistration.load(cand)
+        except InputError as exc:
+            log.warning("ignoring partial registration %s (%s)", cand, exc.problem)
+            continue
+        if found.key == key:
+            partial = found
+            log.info("resuming step 1 from %s (%d frames registered)", cand, found.n_frames())
+            break
+    path = od.staged(PARTIAL)
+    saving = threading.Lock()
+    last = [partial.n_frames()]
+
+    def on_frame(state: Any) -> None:
+        with saving:
+            n = state.n_frames()
+            if n - last[0] < STEP1_CHECKPOINT_EVERY:
+                return
+            with _writing(od.path):
+                state.save(path)
+            last[0] = n
+            fault_point("step1-saved")
+
+    return partial, on_frame
 
 
 def _step2(rest_points: np.ndarray, points: np.ndarray, config: PipelineConfig,
@@ -245,7 +395,8 @@ def _write_outputs(out: Path, seq: PointSequence, reg: Any, result: ExtractResul
               "points_per_frame": n_input,
               "points_used_per_frame": [int(c) for c in seq.counts],
               "rest_frame": int((reg.params or {}).get("rest_frame_index", -1)),
-              "stopped_after": stop_after, **seq.meta}
+              "stopped_after": stop_after, "outliers": result.outliers,
+              "warnings": result.warnings, **seq.meta}
     params = config.to_dict()
     params["timings_s"] = {k: round(v, 3) for k, v in result.timings.items()}
     skel.save_json(out / "skeleton.json", source=source, params=params)
@@ -272,5 +423,6 @@ def _write_pictures(out: Path, seq: PointSequence, reg: Any, skel: Skeleton) -> 
     frames = [reg.points[t] for t in range(len(seq))]
     save_skeleton_png(out / "skeleton.png", frames, skel.joint_positions, skel.parents,
                       point_colors=pc)
+    fault_point("pictures")
     save_sequence_gif(out / "skeleton.gif", frames, skel.joint_positions, skel.parents,
                       point_colors=pc)

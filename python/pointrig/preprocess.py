@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from . import _core
 from .errors import EmptyFrameError, InputError
 from .geometry import (
     farthest_point_sampling,
@@ -30,14 +31,55 @@ from .geometry import (
 if TYPE_CHECKING:
     from .sequence import PointSequence
 
-__all__ = ["remove_sparse_frames", "rest_surface"]
+__all__ = ["OUTLIER_FACTOR", "OUTLIER_SUSPECT", "outlier_fraction", "remove_sparse_frames",
+           "rest_surface"]
+
+#: A point "looks like an outlier" when its k-th neighbour distance exceeds this many times the
+#: frame's 10th percentile of that distance (a surface seen by a depth camera: about 1.25 times
+#: at the median, so a few percent of a clean frame's points exceed 3 times).
+OUTLIER_FACTOR = 3.0
+#: A frame whose points look like outliers in more than this fraction after the clean-up is
+#: mostly outliers: its median neighbour distance, the clean-up's reference, lies among them.
+OUTLIER_SUSPECT = 0.2
 
 log = logging.getLogger(__name__)
 
 
+def _kth_distances(points: np.ndarray, k: int) -> np.ndarray:
+    """``(N,)`` distance of each point to its ``k``-th nearest other point, metres."""
+    p = np.ascontiguousarray(points, dtype=np.float64)
+    return _core.kth_nn_distances(p, p, k + 1)
+
+
+def outlier_fraction(points: np.ndarray, k: int = 10) -> float:
+    """Fraction of the ``(N, 3)`` points (metres) that look like sparse outliers: their
+    ``k``-th neighbour distance exceeds :data:`OUTLIER_FACTOR` times the frame's 10th
+    percentile of it. The low percentile stays on the subject's surface as long as the surface
+    holds a good part of the points, where the median (the clean-up's reference) does not."""
+    if len(points) <= k + 1:
+        return 0.0
+    dk = _kth_distances(points, k)
+    return float(np.mean(dk > OUTLIER_FACTOR * np.quantile(dk, 0.1)))
+
+
+def _remove_sparse_dense_reference(points: np.ndarray, k: int, ratio: float) -> np.ndarray:
+    """:func:`remove_sparse_points` with the median taken over the points that do not look
+    like outliers (:func:`outlier_fraction`) only: the clean-up of a frame that is mostly a
+    uniform scatter, whose overall median lies among the outliers."""
+    dk = _kth_distances(points, k)
+    dense = dk[dk <= OUTLIER_FACTOR * np.quantile(dk, 0.1)]
+    return points[dk <= ratio * np.median(dense)]
+
+
 def remove_sparse_frames(seq: PointSequence, k: int = 10, ratio: float = 4.0,
-                         min_points: int = 10) -> tuple[PointSequence, np.ndarray]:
+                         min_points: int = 10, report: dict | None = None
+                         ) -> tuple[PointSequence, np.ndarray]:
     """:func:`remove_sparse_points` on every frame of a sequence.
+
+    A frame that still looks mostly like outliers afterwards (:func:`outlier_fraction` above
+    :data:`OUTLIER_SUSPECT`: a heavy uniform scatter moved the median neighbour distance the
+    clean-up measures against) is cleaned again against the median of its dense points only.
+    Other frames are cleaned exactly as :func:`remove_sparse_points` does.
 
     Parameters
     ----------
@@ -47,6 +89,10 @@ def remove_sparse_frames(seq: PointSequence, k: int = 10, ratio: float = 4.0,
         As in :func:`remove_sparse_points` (``ratio = 0`` returns ``seq`` itself).
     min_points
         Fewer points left in a frame is an error.
+    report
+        If given, filled with ``"suspect"``: ``(F,)`` bool, the frames that looked mostly like
+        outliers after the usual clean-up, and ``"outliers_left"``: ``(F,)`` the fraction of
+        each cleaned frame's points that still look like outliers.
 
     Returns
     -------
@@ -59,11 +105,20 @@ def remove_sparse_frames(seq: PointSequence, k: int = 10, ratio: float = 4.0,
     EmptyFrameError
         If a frame keeps fewer than ``min_points`` points (naming the frame).
     """
+    suspect, left = np.zeros(seq.n_frames, bool), np.zeros(seq.n_frames)
+    if report is not None:
+        report.update(suspect=suspect, outliers_left=left)
     if ratio <= 0:
+        left[:] = [outlier_fraction(p, k) for p in seq.frames] if report is not None else 0.0
         return seq, np.zeros(seq.n_frames)
     out, removed = [], np.zeros(seq.n_frames)
     for i, pts in enumerate(seq.frames):
         kept = remove_sparse_points(pts, k, ratio)
+        left[i] = outlier_fraction(kept, k)
+        if left[i] > OUTLIER_SUSPECT:
+            suspect[i] = True
+            kept = _remove_sparse_dense_reference(pts, k, ratio)
+            left[i] = outlier_fraction(kept, k)
         if len(kept) < min_points:
             raise EmptyFrameError(
                 f"only {len(kept)} point(s) left after removing sparse points (fewer than "

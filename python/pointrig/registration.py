@@ -21,6 +21,8 @@ import hashlib
 import json
 import logging
 import threading
+import zipfile
+import zlib
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass, field
@@ -48,6 +50,7 @@ from .preprocess import rest_surface
 from .sequence import PointSequence
 
 __all__ = [
+    "PartialRegistration",
     "DeformationGraph",
     "RegistrationResult",
     "build_graph",
@@ -123,7 +126,7 @@ class RegistrationResult:
         """
         try:
             with np.load(path, allow_pickle=False) as z:
-                return cls(
+                res = cls(
                     rest_points=z["rest_points"],
                     points=z["points"],
                     sigma2=z["sigma2"],
@@ -133,8 +136,14 @@ class RegistrationResult:
                     matched=z["matched"] if "matched" in z else np.zeros(0),
                     key=str(z["cache_key"]) if "cache_key" in z else "",
                 )
-        except (KeyError, ValueError, OSError) as exc:
+        except (KeyError, ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
             raise FormatError(f"not a registration checkpoint: {exc}", str(path)) from None
+        for name in ("rest_points", "points", "sigma2"):
+            arr = np.asarray(getattr(res, name))
+            if arr.dtype.kind != "f" or not np.isfinite(arr).all():
+                raise FormatError(f"registration checkpoint holds non-finite or non-float "
+                                  f"values in {name!r}", str(path))
+        return res
 
 
 @dataclass
@@ -342,10 +351,72 @@ def _frame_params(config: RegistrationConfig) -> Any:
     )
 
 
+class PartialRegistration:
+    """The frames registered so far, per rest candidate, to resume an interrupted step 1 where
+    it stopped with the same result as an uninterrupted run.
+
+    ``frames[rf][t]`` holds frame ``t``'s result registered from rest frame ``rf``:
+    ``(R (J, 3, 3), T (J, 3), points (M, 3), sigma2, iterations, energy, matched)``.
+    ``key`` is :func:`cache_key` of the input and parameters it belongs to.
+    """
+
+    FIELDS = ("R", "T", "points", "sigma2", "iterations", "energy", "matched")
+
+    def __init__(self, key: str, frames: dict[int, dict[int, tuple]] | None = None):
+        self.key = key
+        self.frames: dict[int, dict[int, tuple]] = frames or {}
+        self.lock = threading.Lock()
+
+    def n_frames(self) -> int:
+        """Number of (candidate, frame) results held."""
+        return sum(len(v) for v in self.frames.values())
+
+    def save(self, path: str | Path) -> None:
+        """Write the state to an ``.npz``, atomically."""
+        with self.lock:
+            frames = {rf: dict(d) for rf, d in self.frames.items()}
+        arrays: dict[str, Any] = {"cache_key": np.array(self.key),
+                                  "candidates": np.array(sorted(frames), dtype=np.int64)}
+        for rf, d in frames.items():
+            ts = sorted(d)
+            arrays[f"c{rf}_t"] = np.array(ts, dtype=np.int64)
+            for i, name in enumerate(self.FIELDS):
+                arrays[f"c{rf}_{name}"] = np.array([d[t][i] for t in ts])
+        write_npz(path, **arrays)
+
+    @classmethod
+    def load(cls, path: str | Path) -> PartialRegistration:
+        """Read a state written by :meth:`save`.
+
+        Raises
+        ------
+        FormatError
+            Not such a state, or one holding non-finite values.
+        """
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                out = cls(str(z["cache_key"]))
+                for rf in z["candidates"].tolist():
+                    cols = [z[f"c{rf}_{name}"] for name in cls.FIELDS]
+                    out.frames[int(rf)] = {
+                        int(t): tuple(c[i] for c in cols)
+                        for i, t in enumerate(z[f"c{rf}_t"].tolist())}
+        except (KeyError, ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+            raise FormatError(f"not a partial registration: {exc}", str(path)) from None
+        for d in out.frames.values():
+            for vals in d.values():
+                if not all(np.isfinite(np.asarray(v, dtype=np.float64)).all() for v in vals):
+                    raise FormatError("partial registration holds non-finite values",
+                                      str(path))
+        return out
+
+
 def register_sequence(
     seq: PointSequence,
     config: RegistrationConfig | None = None,
     progress: Callable[[int, int], None] | None = None,
+    partial: PartialRegistration | None = None,
+    on_frame: Callable[[PartialRegistration], None] | None = None,
 ) -> RegistrationResult:
     """Register the whole sequence (Algorithm 1 per frame, frames in order).
 
@@ -369,6 +440,12 @@ def register_sequence(
         Parameters (default: :class:`RegistrationConfig`).
     progress
         Called as ``progress(done, total)`` after each frame.
+    partial
+        Frames already registered (an interrupted run's :class:`PartialRegistration`, whose
+        key must match): they are taken as they are, and the frames registered now are added.
+    on_frame
+        Called with the partial state after each frame registered (from the worker threads;
+        e.g. to save it every few frames).
 
     Returns
     -------
@@ -381,6 +458,8 @@ def register_sequence(
         If ``rest_frame`` is an index outside the sequence.
     """
     config = config or RegistrationConfig()
+    if partial is None:
+        partial = PartialRegistration(cache_key(seq, config))
     f = seq.n_frames
     lo, hi = seq.bounds()
     if np.linalg.norm(hi - lo) > 50.0:
@@ -390,7 +469,7 @@ def register_sequence(
         )
     if config.rest_frame != "fit":
         rf = resolve_rest_frame(config, f)  # also checks the index against the frames
-        return _register_from(seq, config, rf, progress)
+        return _register_from(seq, config, rf, progress, partial, on_frame)
     candidates = rest_candidates(config, seq.frames)
     k = len(candidates)
 
@@ -402,7 +481,7 @@ def register_sequence(
     trunc = _misfit_cap(config)
     results, scores = [], []
     for i, rf in enumerate(candidates):
-        results.append(_register_from(seq, config, rf, sub(i)))
+        results.append(_register_from(seq, config, rf, sub(i), partial, on_frame))
         scores.append(sequence_misfit(results[-1].points, seq.frames, trunc))
     # the best fit, unless it explains the frames better than the first candidate by no more
     # than rest_fit_margin
@@ -467,8 +546,15 @@ def rest_candidates(config: RegistrationConfig, frames: Sequence[np.ndarray]) ->
 
 
 def _register_from(seq: PointSequence, config: RegistrationConfig, rf: int,
-                   progress: Callable[[int, int], None] | None) -> RegistrationResult:
-    """:func:`register_sequence` from rest frame ``rf``."""
+                   progress: Callable[[int, int], None] | None,
+                   partial: PartialRegistration | None = None,
+                   on_frame: Callable[[PartialRegistration], None] | None = None
+                   ) -> RegistrationResult:
+    """:func:`register_sequence` from rest frame ``rf`` (frames of ``partial`` reused)."""
+    if partial is None:
+        partial = PartialRegistration(cache_key(seq, config))
+    with partial.lock:
+        known = partial.frames.setdefault(rf, {})
     f = seq.n_frames
     rest = rest_surface(
         seq.frames[rf],
@@ -499,6 +585,14 @@ def _register_from(seq: PointSequence, config: RegistrationConfig, rf: int,
     def one(t: int) -> None:
         """Register frame ``t`` from its neighbour's result (towards the rest frame)."""
         nonlocal done
+        if t in known:  # registered before an interruption: the same arithmetic's result
+            r_k, t_k, points[t], sigma2[t], iters[t], energy[t], matched[t] = known[t]
+            hist[t] = (np.ascontiguousarray(r_k), np.ascontiguousarray(t_k))
+            with lock:
+                done += 1
+                if progress is not None:
+                    progress(done, f)
+            return
         step = 1 if t >= rf else -1
         prev = hist.get(t - step)
         prev2 = hist.get(t - 2 * step)
@@ -542,6 +636,11 @@ def _register_from(seq: PointSequence, config: RegistrationConfig, rf: int,
         iters[t] = res["iterations"]
         energy[t] = res["energy"]
         matched[t] = frac
+        with partial.lock:
+            known[t] = (res["R"], res["T"], res["points"], res["sigma2"], res["iterations"],
+                        res["energy"], frac)
+        if on_frame is not None:
+            on_frame(partial)
         with lock:
             done += 1
             if progress is not None:

@@ -13,7 +13,11 @@ import numpy as np
 
 from .errors import EmptyFrameError, InputError
 
-__all__ = ["PointSequence", "check_units", "frame_extent"]
+__all__ = ["MAX_COORD", "PointSequence", "check_units", "frame_extent"]
+
+#: Largest coordinate magnitude (metres) a point may have, as the native core accepts
+#: (``rust/core/error.rs`` ``MAX_COORD``): far beyond any depth camera's reach.
+MAX_COORD = 1e12
 
 
 @dataclass
@@ -66,6 +70,12 @@ class PointSequence:
                     self.source,
                     frame=i,
                 )
+            far = np.abs(arr).max(axis=1) > MAX_COORD
+            if far.any():
+                raise InputError(
+                    f"{int(far.sum())} point(s) farther than {MAX_COORD:g} m from the origin "
+                    f"(first at row {int(np.argmax(far))}); pointrig works in metres",
+                    self.source, frame=i)
             checked.append(np.ascontiguousarray(arr))
         self.frames = checked
 
@@ -162,19 +172,29 @@ def check_units(seq: PointSequence, max_extent: float) -> None:
     max_extent
         Largest plausible frame extent, metres (``<= 0``: no check).
 
+    A frame of no extent at all (its points coincide) is refused too, whatever
+    ``max_extent``: no motion or surface can be read from it.
+
     Raises
     ------
     InputError
         Naming the widest frame (its file, when the sequence was read from a folder), its
-        extent and the scale factor that would bring it to metres.
+        extent and the scale factor that would bring it to metres; or naming a frame whose
+        points coincide.
     """
+    ext = np.array([frame_extent(v) for v in seq.frames])
+    src = PointSequence.source_path(seq.source)
+    flat = np.flatnonzero(ext == 0)
+    if len(flat):
+        t = int(flat[0])
+        raise InputError(
+            "the frame's points coincide (extent 0 m): nothing to register; check the input "
+            "and --scale", src / seq.names[t] if src.is_dir() else src, frame=t)
     if not max_extent > 0:
         return
-    ext = np.array([frame_extent(v) for v in seq.frames])
     if not len(ext) or ext.max() <= max_extent:
         return
     t = int(np.argmax(ext))
-    src = PointSequence.source_path(seq.source)
     path = src / seq.names[t] if src.is_dir() else src
     # the unit that turns the extent into what one depth camera sees (5 cm to 10 m)
     units = [f"{name}? scale by {f:g}" for f, name in ((0.01, "centimetres"),

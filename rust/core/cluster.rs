@@ -15,7 +15,7 @@
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
-use crate::core::error::{CoreError, CoreResult};
+use crate::core::error::{check_size, CoreError, CoreResult};
 use crate::core::rotation::rotation_maximizing_trace;
 
 /// Per-frame rigid transforms of `K` clusters.
@@ -114,6 +114,15 @@ pub fn fit_clusters(
             ));
         }
     }
+    if k > m {
+        return Err(CoreError::InvalidInput(format!(
+            "{k} clusters for {m} points: at most one cluster per point"
+        )));
+    }
+    check_size(
+        "cluster fits",
+        f.checked_mul(k).and_then(|c| c.checked_mul(12)),
+    )?;
     if let Some(&bad) = labels.iter().find(|&&l| l >= k as i64) {
         return Err(CoreError::InvalidInput(format!(
             "label {bad} out of range for {k} clusters"

@@ -873,7 +873,7 @@ fn run<T: Real>(
     omega: f64,
     cutoff: Option<f64>,
     normals: Option<Normals>,
-) -> EStep {
+) -> CoreResult<EStep> {
     let m = y.len() / 3;
     let n = x.len() / 3;
     // Effective number of data points (the outlier term of Eq. 1 counts the represented mass).
@@ -917,12 +917,14 @@ fn run<T: Real>(
 
     // With a cutoff so wide that a 3x3x3 cell block holds most of the template, the exact
     // dense kernel is as fast: it runs instead (bound 0).
-    let grid = cutoff
-        .map(|cf| {
+    let grid = match cutoff {
+        Some(cf) => {
             let radius = cf * sigma2.sqrt();
-            (Grid::new(&yc, radius), radius, (-0.5 * cf * cf).exp())
-        })
-        .filter(|(g, _, _)| g.mean_block() < DENSE_BLOCK_FRACTION * m as f64);
+            Some((Grid::new(&yc, radius)?, radius, (-0.5 * cf * cf).exp()))
+        }
+        None => None,
+    }
+    .filter(|(g, _, _)| g.mean_block() < DENSE_BLOCK_FRACTION * m as f64);
     let order: Vec<usize> = match &grid {
         Some((g, _, _)) => g.order().iter().map(|&k| k as usize).collect(),
         None => (0..m).collect(),
@@ -1000,7 +1002,7 @@ fn run<T: Real>(
     let log_norm = ((1.0 - omega) * vmf_norm / (m as f64 * two_pi_s2.powf(1.5))).ln();
     stats.nll = -log_den - n_eff * log_norm;
     stats.e_gmm = stats.sum_sq / (2.0 * sigma2) + 1.5 * stats.n_p * sigma2.ln();
-    EStep { p1, pt1, px, stats }
+    Ok(EStep { p1, pt1, px, stats })
 }
 
 /// E-step sufficient statistics (Eq. 4) of template `y` (flat `(M, 3)`) against data `x`
@@ -1034,10 +1036,10 @@ pub fn estep_weighted(
 ) -> CoreResult<EStep> {
     validate(y, x, sigma2, omega, cutoff)?;
     validate_weights(x, wx)?;
-    Ok(match precision {
+    match precision {
         Precision::Double => run::<f64>(y, x, wx, sigma2, omega, cutoff, None),
         Precision::Single => run::<f32>(y, x, wx, sigma2, omega, cutoff, None),
-    })
+    }
 }
 
 /// [`estep_weighted`] with surface normals: each pair's Gaussian is multiplied by the von
@@ -1083,10 +1085,10 @@ pub fn estep_normals(
     }
     validate(y, x, sigma2, omega, cutoff)?;
     validate_weights(x, wx)?;
-    Ok(match precision {
+    match precision {
         Precision::Double => run::<f64>(y, x, wx, sigma2, omega, cutoff, Some(normals)),
         Precision::Single => run::<f32>(y, x, wx, sigma2, omega, cutoff, Some(normals)),
-    })
+    }
 }
 
 #[cfg(test)]

@@ -42,19 +42,27 @@ impl Grid {
     /// Bucket `points` (flat row-major `(n, 3)`, finite) into cells of side at least `h`.
     ///
     /// `h` must be positive and finite; it is enlarged when the bounding box would need more
-    /// than `MAX_CELLS` cells (queries stay exact, only slower).
-    pub fn new(points: &[f64], h: f64) -> Grid {
+    /// than `MAX_CELLS` cells (queries stay exact, only slower). A bounding box whose extent is
+    /// not a finite number (coordinates near the limits of `f64`) is an `InvalidInput` error.
+    pub fn new(points: &[f64], h: f64) -> CoreResult<Grid> {
         let n = points.len() / 3;
         let (mut lo, mut hi) = bounding_box(points);
         if n == 0 {
             lo = [0.0; 3];
             hi = [0.0; 3];
         }
+        if let Some(a) = (0..3).find(|&a| !(hi[a] - lo[a]).is_finite()) {
+            return Err(CoreError::InvalidInput(format!(
+                "points span {:e} .. {:e} along axis {a}, too far apart for a grid",
+                lo[a], hi[a]
+            )));
+        }
         let mut h = if h.is_finite() && h > 0.0 { h } else { 1.0 };
+        // each axis clamped to MAX_CELLS before the cast, so a huge extent cannot wrap it
         let dims_for = |h: f64| -> [usize; 3] {
             let mut d = [1usize; 3];
             for a in 0..3 {
-                d[a] = ((hi[a] - lo[a]) / h).floor() as usize + 1;
+                d[a] = ((hi[a] - lo[a]) / h).floor().min(MAX_CELLS as f64) as usize + 1;
             }
             d
         };
@@ -87,13 +95,13 @@ impl Grid {
             order[fill[c] as usize] = i as u32;
             fill[c] += 1;
         }
-        Grid {
+        Ok(Grid {
             origin: lo,
             inv_h,
             dims,
             start,
             order,
-        }
+        })
     }
 
     /// Point indices in sorted (cell) order; ranges from [`Grid::ranges`] index into this.
@@ -249,7 +257,7 @@ pub fn surface_normals(
         return Ok(vec![0.0; query.len()]);
     }
     let (cent, cnt) = voxel_downsample(source, 0.25 * radius);
-    let grid = Grid::new(&cent, radius);
+    let grid = Grid::new(&cent, radius)?;
     let order = grid.order();
     let r2 = radius * radius;
     let out: Vec<[f64; 3]> = query
@@ -386,12 +394,33 @@ mod tests {
     use super::*;
 
     #[test]
+    fn far_apart_points_keep_a_bounded_grid_or_fail_cleanly() {
+        // an extent of 1e18 or 1e300 cells of 0.1: the cell side grows, nothing wraps
+        for far in [1e18, 1e300] {
+            let pts = [0.0, 0.0, 0.0, 0.05, 0.0, 0.0, far, far, far];
+            let g = Grid::new(&pts, 0.1).unwrap();
+            assert!(g.n_cells() <= MAX_CELLS);
+            let mut found = Vec::new();
+            g.ranges([0.0, 0.0, 0.0], |lo, hi| {
+                found.extend_from_slice(&g.order()[lo..hi])
+            });
+            assert!(found.contains(&0) && found.contains(&1));
+        }
+        // an extent that is not a finite number
+        let pts = [-1e308, 0.0, 0.0, 1e308, 0.0, 0.0];
+        assert!(matches!(
+            Grid::new(&pts, 0.1),
+            Err(CoreError::InvalidInput(_))
+        ));
+    }
+
+    #[test]
     fn radius_query_matches_brute_force() {
         let pts: Vec<f64> = (0..3000)
             .map(|i| ((i as f64) * 0.618_033_988_7).fract() * 2.0 - 1.0)
             .collect();
         let r = 0.2;
-        let g = Grid::new(&pts, r);
+        let g = Grid::new(&pts, r).unwrap();
         for q in pts.chunks_exact(3).take(50) {
             let q = [q[0] + 0.05, q[1], q[2] - 0.03];
             let mut found = vec![];
@@ -417,7 +446,7 @@ mod tests {
         let pts: Vec<f64> = (0..900)
             .map(|i| (i * 7919 % 1009) as f64 / 1009.0)
             .collect();
-        let g = Grid::new(&pts, 0.15);
+        let g = Grid::new(&pts, 0.15).unwrap();
         let brute: f64 = pts
             .chunks_exact(3)
             .map(|p| {
@@ -439,7 +468,7 @@ mod tests {
         let pts: Vec<f64> = (0..600)
             .map(|i| ((i * 7919 % 1000) as f64 / 1000.0) * if i % 3 == 2 { 0.3 } else { 1.0 })
             .collect();
-        let g = Grid::new(&pts, 0.1);
+        let g = Grid::new(&pts, 0.1).unwrap();
         let mut seen = std::collections::HashMap::new();
         for i in 0..3000 {
             let q = [

@@ -2,10 +2,9 @@
 
 use nalgebra::Vector3;
 use numpy::{PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2};
-use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
-use super::{flat1, points, to_array2};
+use super::{flat1, input_err, points, to_array2};
 use crate::core::rotation;
 
 fn as_vecs(flat: &[f64]) -> Vec<Vector3<f64>> {
@@ -29,7 +28,7 @@ fn kabsch<'py>(
     let s = as_vecs(points(py, &src, "src")?);
     let d = as_vecs(points(py, &dst, "dst")?);
     if s.len() != d.len() {
-        return Err(PyValueError::new_err(format!(
+        return Err(input_err(format!(
             "src and dst must have the same number of points, got {} and {}",
             s.len(),
             d.len()
@@ -39,9 +38,7 @@ fn kabsch<'py>(
         Some(w) => {
             let w = flat1(py, w, "weights")?;
             if w.len() != s.len() {
-                return Err(PyValueError::new_err(
-                    "weights must have one entry per point",
-                ));
+                return Err(input_err("weights must have one entry per point"));
             }
             Some(w.to_vec())
         }

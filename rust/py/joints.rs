@@ -8,12 +8,11 @@
 use numpy::{
     PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods,
 };
-use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
 use super::CSlice;
 
-use super::{flat1, flat2, points, to_array2, to_pyerr};
+use super::{flat1, flat2, input_err, points, to_array2, to_pyerr};
 use crate::core::lbs::{self, Dims, SparseWeights};
 use crate::core::qp;
 
@@ -22,10 +21,7 @@ fn indices(arr: &PyReadonlyArray2<'_, i64>, name: &str) -> PyResult<(Vec<usize>,
     let s = arr.c_slice(name)?;
     let out = s
         .iter()
-        .map(|&v| {
-            usize::try_from(v)
-                .map_err(|_| PyValueError::new_err(format!("{name}: negative index {v}")))
-        })
+        .map(|&v| usize::try_from(v).map_err(|_| input_err(format!("{name}: negative index {v}"))))
         .collect::<PyResult<Vec<usize>>>()?;
     Ok((out, cols))
 }
@@ -38,14 +34,14 @@ fn parents(arr: &PyReadonlyArray1<'_, i64>) -> PyResult<Vec<i64>> {
 fn dims(q: &[f64], r: &[f64], t: &[f64], n_frames: usize) -> PyResult<Dims> {
     let m = q.len() / 3;
     if n_frames == 0 || !r.len().is_multiple_of(9 * n_frames) {
-        return Err(PyValueError::new_err(format!(
+        return Err(input_err(format!(
             "R: expected shape (F*B, 9) with F = {n_frames}, got {} rows",
             r.len() / 9
         )));
     }
     let b = r.len() / (9 * n_frames);
     if t.len() != 3 * b * n_frames {
-        return Err(PyValueError::new_err(format!(
+        return Err(input_err(format!(
             "T: expected shape ({}, 3), got ({}, 3)",
             b * n_frames,
             t.len() / 3
@@ -224,7 +220,7 @@ fn lbs_sweep_paper<'py>(
     )?;
     let t_pre = points(py, &t_pre, "T_pre")?;
     if !alpha.is_finite() || !gamma.is_finite() {
-        return Err(PyValueError::new_err("alpha and gamma must be finite"));
+        return Err(input_err("alpha and gamma must be finite"));
     }
     let (mut rr, mut tt) = (s.r.to_vec(), s.t.to_vec());
     py.detach(|| {
@@ -284,7 +280,7 @@ fn lbs_sweep_articulated<'py>(
         n_frames,
     )?;
     if !gamma.is_finite() {
-        return Err(PyValueError::new_err("gamma must be finite"));
+        return Err(input_err("gamma must be finite"));
     }
     let smooth: &[f64] = match &smooth {
         Some(v) => flat1(py, v, "smooth")?,
@@ -347,9 +343,7 @@ fn lbs_estep_frames<'py>(
     let offs = offsets
         .c_slice("offsets")?
         .iter()
-        .map(|&o| {
-            usize::try_from(o).map_err(|_| PyValueError::new_err(format!("offsets: negative {o}")))
-        })
+        .map(|&o| usize::try_from(o).map_err(|_| input_err(format!("offsets: negative {o}"))))
         .collect::<PyResult<Vec<usize>>>()?;
     let prec = if single {
         crate::core::gmm::Precision::Single

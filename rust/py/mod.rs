@@ -11,7 +11,7 @@ use numpy::{
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
-use crate::core::error::{check_finite, CoreError};
+use crate::core::error::{check_finite, check_points, CoreError};
 
 mod basic;
 mod joints;
@@ -34,7 +34,7 @@ impl<T: numpy::Element, D: numpy::ndarray::Dimension> CSlice<T>
         let contiguous = self.is_c_contiguous();
         match self.as_slice() {
             Ok(s) if contiguous => Ok(s),
-            _ => Err(PyValueError::new_err(format!(
+            _ => Err(input_err(format!(
                 "{name}: array must be C-contiguous (use numpy.ascontiguousarray)"
             ))),
         }
@@ -44,8 +44,7 @@ impl<T: numpy::Element, D: numpy::ndarray::Dimension> CSlice<T>
 /// Map a core error to the matching class of `pointrig.errors` (one place for the mapping).
 pub(crate) fn to_pyerr(py: Python<'_>, err: CoreError) -> PyErr {
     let (class, msg) = match &err {
-        CoreError::InvalidInput(_) => return PyValueError::new_err(err.to_string()),
-        CoreError::NonFinite(_) => ("InputError", err.to_string()),
+        CoreError::InvalidInput(_) | CoreError::NonFinite(_) => ("InputError", err.to_string()),
         CoreError::Convergence(_) => ("ConvergenceError", err.to_string()),
         CoreError::Numerical(_) => ("NumericalError", err.to_string()),
     };
@@ -68,7 +67,7 @@ pub(crate) fn flat2<'a>(
 ) -> PyResult<&'a [f64]> {
     let shape = arr.shape();
     if shape[1] != cols {
-        return Err(PyValueError::new_err(format!(
+        return Err(input_err(format!(
             "{name}: expected shape (n, {cols}), got ({}, {})",
             shape[0], shape[1]
         )));
@@ -78,13 +77,32 @@ pub(crate) fn flat2<'a>(
     Ok(s)
 }
 
-/// Borrow an `(n, 3)` point array (metres) as a flat row-major slice.
+/// Borrow an `(n, 3)` point array (metres) as a flat row-major slice; coordinates beyond
+/// `MAX_COORD` are an `InputError`.
 pub(crate) fn points<'a>(
     py: Python<'_>,
     arr: &'a PyReadonlyArray2<'_, f64>,
     name: &str,
 ) -> PyResult<&'a [f64]> {
-    flat2(py, arr, name, 3)
+    let s = flat2(py, arr, name, 3)?;
+    check_points(name, s).map_err(|e| to_pyerr(py, e))?;
+    Ok(s)
+}
+
+/// A `pointrig.errors.InputError` (a `ValueError`) with `msg`: the binding's own argument
+/// checks (shapes, lengths, indices) raise the same class as the core's.
+pub(crate) fn input_err(msg: impl Into<String>) -> PyErr {
+    let msg = msg.into();
+    Python::attach(|py| {
+        match py
+            .import("pointrig.errors")
+            .and_then(|m| m.getattr("InputError"))
+            .and_then(|cls| cls.call1((msg.clone(),)))
+        {
+            Ok(exc) => PyErr::from_value(exc),
+            Err(_) => PyValueError::new_err(msg),
+        }
+    })
 }
 
 /// Borrow a 1-D float64 contiguous, finite array.

@@ -9,13 +9,12 @@ use numpy::{
     PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2,
     PyReadonlyArray3, PyUntypedArrayMethods,
 };
-use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
 use super::CSlice;
 use pyo3::types::PyDict;
 
-use super::{flat1, flat2, points, to_array2, to_pyerr};
+use super::{flat1, flat2, input_err, points, to_array2, to_pyerr};
 use crate::core::deform::{self, DataTerm, FrameParams, Graph, NodeState, Solver, Weights};
 use crate::core::error::{check_finite, CoreResult};
 use crate::core::gmm::{self, Precision};
@@ -28,9 +27,7 @@ fn read_rotations(
 ) -> PyResult<Vec<Matrix3<f64>>> {
     let rs = r.shape();
     if rs[0] != j || rs[1] != 3 || rs[2] != 3 {
-        return Err(PyValueError::new_err(format!(
-            "R must have shape ({j}, 3, 3)"
-        )));
+        return Err(input_err(format!("R must have shape ({j}, 3, 3)")));
     }
     let rsl = r.c_slice("R")?;
     check_finite("R", rsl).map_err(|e| to_pyerr(py, e))?;
@@ -46,7 +43,7 @@ fn read_state(
     let rot = read_rotations(py, r, j)?;
     let tsl = points(py, t, "T")?;
     if tsl.len() != 3 * j {
-        return Err(PyValueError::new_err(format!("T must have shape ({j}, 3)")));
+        return Err(input_err(format!("T must have shape ({j}, 3)")));
     }
     Ok(NodeState {
         r: rot,
@@ -103,7 +100,7 @@ impl DeformGraph {
         let w = flat2(py, &pn_w, "pn_w", k)?;
         let idx = pn_idx.c_slice("pn_idx")?;
         if edges.shape()[1] != 2 {
-            return Err(PyValueError::new_err("edges must have shape (E, 2)"));
+            return Err(input_err("edges must have shape (E, 2)"));
         }
         let e = edges.c_slice("edges")?;
         let mut g = Graph::new(r, n, idx, w, k, e).map_err(|e| to_pyerr(py, e))?;
@@ -146,7 +143,7 @@ impl DeformGraph {
         r: PyReadonlyArray3<'py, f64>,
     ) -> PyResult<Bound<'py, PyArray2<f64>>> {
         if !self.g.has_normals() {
-            return Err(PyValueError::new_err(
+            return Err(input_err(
                 "deform_normals: the graph was built without normals",
             ));
         }
@@ -219,13 +216,13 @@ impl DeformGraph {
     ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f64>>)> {
         let nj = self.g.n_nodes();
         if j >= nj {
-            return Err(PyValueError::new_err(format!("node {j} out of range")));
+            return Err(input_err(format!("node {j} out of range")));
         }
         let mut st = read_state(py, &r, &t, nj)?;
         let pre = read_state(py, &r_pre, &t_pre, nj)?;
         let (p1s, pxs) = self.data(py, &p1, &px)?;
         if !(sigma2 > 0.0) {
-            return Err(PyValueError::new_err("sigma2 must be positive"));
+            return Err(input_err("sigma2 must be positive"));
         }
         let d = DataTerm {
             p1: p1s,
@@ -276,7 +273,7 @@ impl DeformGraph {
         let mut st = read_state(py, &r, &t, self.g.n_nodes())?;
         let (p1s, pxs) = self.data(py, &p1, &px)?;
         if !(sigma2 > 0.0) {
-            return Err(PyValueError::new_err("sigma2 must be positive"));
+            return Err(input_err("sigma2 must be positive"));
         }
         let d = DataTerm {
             p1: p1s,
@@ -376,7 +373,7 @@ impl PyFrameParams {
             "gauss_newton" => Solver::GaussNewton,
             "sweeps" => Solver::Sweeps,
             other => {
-                return Err(PyValueError::new_err(format!(
+                return Err(input_err(format!(
                     "solver must be 'gauss_newton' or 'sweeps', got {other:?}"
                 )))
             }
@@ -420,10 +417,10 @@ impl DeformGraph {
         let p1s = flat1(py, p1, "p1")?;
         let pxs = points(py, px, "px")?;
         if p1s.len() != m || pxs.len() != 3 * m {
-            return Err(PyValueError::new_err(format!("p1, px must have {m} rows")));
+            return Err(input_err(format!("p1, px must have {m} rows")));
         }
         if p1s.iter().any(|&v| v < 0.0) {
-            return Err(PyValueError::new_err("p1 must be non-negative"));
+            return Err(input_err("p1 must be non-negative"));
         }
         Ok((p1s, pxs))
     }

@@ -5,12 +5,11 @@ use numpy::{
     PyArray1, PyArrayDyn, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArrayDyn,
     PyUntypedArrayMethods,
 };
-use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
 use super::CSlice;
 
-use super::{points, to_array2, to_pyerr};
+use super::{input_err, points, to_array2, to_pyerr};
 use crate::core::cluster;
 use crate::core::error::check_finite;
 
@@ -25,7 +24,7 @@ fn flat_nd<'a>(
 ) -> PyResult<(&'a [f64], Vec<usize>)> {
     let shape = arr.shape();
     if shape.len() != lead + tail.len() || &shape[lead..] != tail {
-        return Err(PyValueError::new_err(format!(
+        return Err(input_err(format!(
             "{name}: expected {lead} leading dims then {tail:?}, got shape {shape:?}"
         )));
     }
@@ -36,7 +35,7 @@ fn flat_nd<'a>(
 
 fn check_frames(f_pts: &[usize], m: usize) -> PyResult<usize> {
     if f_pts[1] != m {
-        return Err(PyValueError::new_err(format!(
+        return Err(input_err(format!(
             "points must be (F, M={m}, 3), got M={}",
             f_pts[1]
         )));
@@ -122,7 +121,7 @@ fn swap_residuals<'py>(
     let (r, _) = flat_nd(py, &rotations, "R", 2, &[3, 3])?;
     let (t, _) = flat_nd(py, &translations, "T", 2, &[3])?;
     if pairs.shape()[1] != 2 {
-        return Err(PyValueError::new_err("pairs must be (P, 2)"));
+        return Err(input_err("pairs must be (P, 2)"));
     }
     let p = pairs.c_slice("pairs")?;
     let out = py

@@ -7,16 +7,22 @@ Every reader returns ``(N, 3)`` float64 points in metres and raises a subclass o
 from __future__ import annotations
 
 import json
+import logging
 import re
+import stat
+import zipfile
+import zlib
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..errors import ConfigError, EmptyFrameError, FormatError, InputError
-from ..sequence import PointSequence
+from ..sequence import MAX_COORD, PointSequence
 from .depthcam import Isolation
 from .recordings import RECORDING_FORMATS, detect_recording, isolate_points, read_recording
+
+log = logging.getLogger(__name__)
 
 __all__ = ["FRAME_FORMATS", "detect_format", "read_frame", "read_sequence", "natural_key",
            "read_intrinsics", "find_intrinsics", "INTRINSICS_NAMES", "depth_to_points",
@@ -38,6 +44,37 @@ def natural_key(name: str) -> list:
     return [int(tok) if tok.isdigit() else tok.lower() for tok in re.split(r"(\d+)", name)]
 
 
+def _ply_header_line(toks: list[str], lineno: int,
+                     elements: list[tuple[str, int, list[tuple[str, str]]]], path: Path) -> None:
+    """Check one ``format``/``element``/``property`` line of a PLY header (its words
+    ``toks``) and add an element or property to ``elements``; :class:`FormatError` naming the
+    line otherwise."""
+    need = {"format": 3, "element": 3, "property": 3}.get(toks[0], 0)
+    if toks[0] == "property" and len(toks) > 1 and toks[1] == "list":
+        need = 5
+    if len(toks) < need:
+        raise FormatError(f"PLY header line {lineno} lacks a value: {' '.join(toks)!r}", path)
+    if toks[0] == "element":
+        try:
+            count = int(toks[2])
+        except ValueError:
+            raise FormatError(f"PLY header line {lineno}: element count {toks[2]!r} is not a "
+                              "whole number", path) from None
+        if count < 0:
+            raise FormatError(f"PLY header line {lineno}: negative element count {count}",
+                              path)
+        elements.append((toks[1], count, []))
+    elif toks[0] == "property":
+        if not elements:
+            raise FormatError("PLY property before any element", path)
+        if toks[1] == "list":
+            elements[-1][2].append((toks[-1], "list:" + toks[2] + ":" + toks[3]))
+        else:
+            if toks[1] not in _PLY_TYPES:
+                raise FormatError(f"unknown PLY property type {toks[1]!r}", path)
+            elements[-1][2].append((toks[-1], _PLY_TYPES[toks[1]]))
+
+
 def _read_ply(path: Path) -> np.ndarray:
     with open(path, "rb") as fh:
         first = fh.readline()
@@ -45,8 +82,10 @@ def _read_ply(path: Path) -> np.ndarray:
             raise FormatError("not a PLY file (missing 'ply' magic)", path)
         fmt = None
         elements: list[tuple[str, int, list[tuple[str, str]]]] = []
+        lineno = 1
         while True:
             line = fh.readline()
+            lineno += 1
             if not line:
                 raise FormatError("truncated PLY header (no end_header)", path)
             toks = line.decode("ascii", "replace").split()
@@ -54,19 +93,9 @@ def _read_ply(path: Path) -> np.ndarray:
                 continue
             if toks[0] == "end_header":
                 break
+            _ply_header_line(toks, lineno, elements, path)
             if toks[0] == "format":
                 fmt = toks[1]
-            elif toks[0] == "element":
-                elements.append((toks[1], int(toks[2]), []))
-            elif toks[0] == "property":
-                if not elements:
-                    raise FormatError("PLY property before any element", path)
-                if toks[1] == "list":
-                    elements[-1][2].append((toks[-1], "list:" + toks[2] + ":" + toks[3]))
-                else:
-                    if toks[1] not in _PLY_TYPES:
-                        raise FormatError(f"unknown PLY property type {toks[1]!r}", path)
-                    elements[-1][2].append((toks[-1], _PLY_TYPES[toks[1]]))
         body = fh.read()
     if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
         raise FormatError(f"unsupported PLY format {fmt!r}", path)
@@ -142,9 +171,7 @@ def _read_pcd(path: Path) -> np.ndarray:
         raise FormatError(f"malformed PCD header: {exc}", path) from None
     if not {"x", "y", "z"} <= set(fields):
         raise FormatError(f"PCD lacks x/y/z fields (has {fields})", path)
-    kinds = {"F": "f", "I": "i", "U": "u"}
-    dtype = np.dtype([(f, "<" + kinds.get(t, "f") + str(s), (c,) if c > 1 else ())
-                      for f, s, t, c in zip(fields, sizes, types, counts)])
+    dtype = _pcd_dtype(fields, sizes, types, counts, npts, path)
     if data == "ascii":
         text = raw[pos:].decode("ascii", "replace").split("\n")
         rows = [r.split() for r in text if r.strip()]
@@ -167,6 +194,32 @@ def _read_pcd(path: Path) -> np.ndarray:
     if data == "binary_compressed":
         return _read_pcd_compressed(raw, pos, dtype, npts, path)
     raise FormatError(f"unsupported PCD DATA type {data!r}", path)
+
+
+def _pcd_dtype(fields: list[str], sizes: list[int], types: list[str], counts: list[int],
+               npts: int, path: Path) -> np.dtype:
+    """The record type of a PCD header's ``FIELDS``, ``SIZE``, ``TYPE``, ``COUNT``, checked:
+    one size, type and count per field, ``F`` of 4 or 8 bytes, ``I``/``U`` of 1, 2, 4 or 8,
+    counts >= 1 and ``POINTS >= 0``; :class:`FormatError` naming the problem otherwise."""
+    if not len(fields) == len(sizes) == len(types) == len(counts):
+        raise FormatError(f"malformed PCD header: {len(fields)} FIELDS but {len(sizes)} SIZE, "
+                          f"{len(types)} TYPE and {len(counts)} COUNT values", path)
+    kinds = {"F": ("f", (4, 8)), "I": ("i", (1, 2, 4, 8)), "U": ("u", (1, 2, 4, 8))}
+    parts = []
+    for f, s, t, c in zip(fields, sizes, types, counts):
+        if t.upper() not in kinds:
+            raise FormatError(f"malformed PCD header: field {f!r} has TYPE {t!r} (F, I or U)",
+                              path)
+        kind, allowed = kinds[t.upper()]
+        if s not in allowed:
+            raise FormatError(f"malformed PCD header: field {f!r} of TYPE {t} has SIZE {s} "
+                              f"(one of {', '.join(map(str, allowed))})", path)
+        if c < 1:
+            raise FormatError(f"malformed PCD header: field {f!r} has COUNT {c}", path)
+        parts.append((f, "<" + kind + str(s), (c,) if c > 1 else ()))
+    if npts < 0:
+        raise FormatError(f"malformed PCD header: negative POINTS {npts}", path)
+    return np.dtype(parts)
 
 
 def _read_pcd_compressed(raw: bytes, pos: int, dtype: np.dtype, npts: int, path: Path) -> np.ndarray:
@@ -278,16 +331,34 @@ def _read_xyz(path: Path) -> np.ndarray:
     return np.array(rows, dtype=np.float64).reshape(-1, 3)
 
 
+def _check_magic(path: Path, magic: bytes, what: str) -> None:
+    """:class:`FormatError` unless the file starts with ``magic``."""
+    with open(path, "rb") as fh:
+        head = fh.read(len(magic))
+    if head != magic:
+        raise FormatError(f"not {what} (the file does not start as one)", path)
+
+
+def _real_coordinates(arr: np.ndarray, path: Path, frame: int | None = None,
+                      what: str = "array") -> np.ndarray:
+    """``arr`` as float64 when its values are real numbers (integers or floats); complex,
+    boolean, text or object values are an :class:`InputError` (a cast would lose or invent
+    data)."""
+    if arr.dtype.kind not in "iuf":
+        raise InputError(f"{what} holds {arr.dtype} values; coordinates must be real numbers "
+                         "(integer or float)", path, frame=frame)
+    return arr.astype(np.float64)
+
+
 def _read_npy(path: Path) -> np.ndarray:
+    _check_magic(path, b"\x93NUMPY", "a .npy array")
     try:
         arr = np.load(path, allow_pickle=False)
     except (ValueError, OSError, EOFError) as exc:
         raise FormatError(f"not a readable .npy array: {exc}", path) from None
     if arr.ndim != 2 or arr.shape[1] != 3:
         raise InputError(f"expected an array of shape (N, 3), got {arr.shape}", path)
-    if not np.issubdtype(arr.dtype, np.number):
-        raise InputError(f"expected a numeric array, got dtype {arr.dtype}", path)
-    return arr.astype(np.float64)
+    return _real_coordinates(arr, path)
 
 
 #: file names searched for the intrinsics of a depth-PNG folder, in this order, in the folder
@@ -344,10 +415,12 @@ def read_intrinsics(path: str | Path) -> dict[str, float]:
     if ("width" in doc) != ("height" in doc):
         raise InputError("intrinsics give one of width and height; give both or neither", p)
     out.update({key: doc[key] for key in ("width", "height") if key in doc})
-    try:
-        out = {key: float(value) for key, value in out.items()}
-    except (TypeError, ValueError) as exc:
-        raise InputError(f"intrinsics values must be numbers: {exc}", p) from None
+    for key, value in out.items():
+        # JSON numbers only: true would read as 1 and "525" hides a typing mistake
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise InputError(f"intrinsics values must be numbers: {key!r} is "
+                             f"{json.dumps(value)}", p)
+    out = {key: float(value) for key, value in out.items()}
     if not all(np.isfinite(v) for v in out.values()):
         raise InputError("intrinsics values must be finite", p)
     if out["fx"] <= 0 or out["fy"] <= 0 or out["depth_scale"] <= 0:
@@ -427,8 +500,9 @@ def _read_depth_png(path: Path, intr: dict[str, float]) -> np.ndarray:
 def read_frame(path: str | Path, intrinsics: dict[str, float] | None = None) -> np.ndarray:
     """Read one frame file to ``(N, 3)`` float64 metres (no finiteness check here)."""
     p = Path(path)
-    if not p.exists():
-        raise InputError("file not found", p)
+    why = _not_a_frame_file(p)
+    if why is not None:
+        raise InputError(why, p)
     fmt = FRAME_FORMATS.get(p.suffix.lower())
     if fmt is None:
         raise FormatError(f"unknown frame format {p.suffix!r}; expected one of "
@@ -451,6 +525,54 @@ def read_frame(path: str | Path, intrinsics: dict[str, float] | None = None) -> 
         raise FormatError(f"unreadable file: {exc}", p) from None
 
 
+def _frame_entries(folder: Path) -> list[Path]:
+    """The entries of ``folder`` named like frames (a suffix of :data:`FRAME_FORMATS`), folders
+    aside: regular files, links to them, and also the entries that cannot be frames (a dangling
+    link, a FIFO, a device), which :func:`read_frame` refuses by name, so that they never drop
+    out of the sequence unnoticed and shift the frame indices."""
+    out = []
+    for f in folder.iterdir():
+        if f.suffix.lower() not in FRAME_FORMATS:
+            continue
+        try:
+            if stat.S_ISDIR(f.stat().st_mode):
+                continue
+        except OSError:
+            pass  # a dangling link: read_frame names it
+        out.append(f)
+    return out
+
+
+def _read_frame_at(path: Path, intrinsics: dict[str, float] | None, frame: int) -> np.ndarray:
+    """:func:`read_frame` whose errors also name the frame's index in the sequence."""
+    try:
+        return read_frame(path, intrinsics)
+    except InputError as exc:
+        if exc.frame is not None:
+            raise
+        raise type(exc)(exc.problem, exc.path, frame=frame) from None
+
+
+def _not_a_frame_file(p: Path) -> str | None:
+    """Why ``p`` cannot be read as a frame file (a dangling link, a FIFO, a device...), or
+    ``None`` for a regular file (or a link to one)."""
+    try:
+        mode = p.stat().st_mode
+    except FileNotFoundError:
+        if p.is_symlink():
+            return f"a symbolic link to {str(p.readlink())!r}, which does not exist"
+        return "file not found"
+    except OSError as exc:
+        return f"cannot be examined: {exc.strerror or exc}"
+    if stat.S_ISREG(mode):
+        return None
+    kinds = ((stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISCHR, "a character device"),
+             (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"),
+             (stat.S_ISDIR, "a folder"))
+    kind = next((name for test, name in kinds if test(mode)), "not a regular file")
+    return f"{kind}, not a frame file"
+
+
 def detect_format(path: str | Path) -> str:
     """The sequence format of ``path``: a frame format name, or ``"npz"``.
 
@@ -469,7 +591,7 @@ def detect_format(path: str | Path) -> str:
         if p.suffix.lower() == ".npz":
             return "npz"
         raise FormatError("a sequence is a directory of frames or one .npz file", p)
-    files = [f for f in p.iterdir() if f.is_file() and f.suffix.lower() in FRAME_FORMATS]
+    files = _frame_entries(p)
     kinds = sorted({FRAME_FORMATS[f.suffix.lower()] for f in files})
     if not kinds:
         raise InputError(f"no frame files found (expected {sorted(set(FRAME_FORMATS))})", p)
@@ -479,6 +601,7 @@ def detect_format(path: str | Path) -> str:
 
 
 def _read_npz(path: Path) -> tuple[list[np.ndarray], list[str]]:
+    _check_magic(path, b"PK", "a .npz archive (a zip of .npy arrays)")
     try:
         with np.load(path, allow_pickle=False) as z:
             keys = list(z.files)
@@ -488,8 +611,8 @@ def _read_npz(path: Path) -> tuple[list[np.ndarray], list[str]]:
                 arr = z[keys[0]]
                 if arr.shape[2] != 3:
                     raise InputError(f"expected an array (F, N, 3), got {arr.shape}", path)
-                return [a.astype(np.float64) for a in arr], [f"{keys[0]}[{i}]" for i in
-                                                              range(len(arr))]
+                arr = _real_coordinates(arr, path, what=f"array {keys[0]!r}")
+                return list(arr), [f"{keys[0]}[{i}]" for i in range(len(arr))]
             keys = sorted(keys, key=natural_key)
             frames = []
             for i, k in enumerate(keys):
@@ -497,11 +620,11 @@ def _read_npz(path: Path) -> tuple[list[np.ndarray], list[str]]:
                 if a.ndim != 2 or a.shape[1] != 3:
                     raise InputError(f"array {k!r}: expected shape (N, 3), got {a.shape}", path,
                                      frame=i)
-                frames.append(a.astype(np.float64))
+                frames.append(_real_coordinates(a, path, i, f"array {k!r}"))
             return frames, keys
     except InputError:
         raise
-    except (ValueError, OSError, EOFError) as exc:
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
         raise FormatError(f"not a readable .npz file: {exc}", path) from None
 
 
@@ -515,6 +638,17 @@ def voxel_downsample(points: np.ndarray, voxel: float) -> np.ndarray:
     out = np.zeros((len(counts), 3))
     np.add.at(out, inv, points)
     return out / counts[:, None]
+
+
+def _corner(value: Any, name: str) -> np.ndarray:
+    """A crop corner as ``(3,)`` float64 metres, or :class:`ConfigError` naming ``name``."""
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        arr = np.zeros(0)
+    if arr.shape != (3,) or not np.isfinite(arr).all():
+        raise ConfigError(f"{name} must be 3 finite numbers (x, y, z metres), got {value!r}")
+    return arr
 
 
 def read_sequence(
@@ -532,6 +666,7 @@ def read_sequence(
     min_frames: int = 2,
     topic: str | None = None,
     isolation: Isolation | None = None,
+    skip_bad_frames: bool = False,
 ) -> PointSequence:
     """Read a point-cloud sequence.
 
@@ -561,6 +696,11 @@ def read_sequence(
     isolation
         Depth range (``z``, metres) and pixel box of depth images kept
         (:class:`pointrig.io.depthcam.Isolation`).
+    skip_bad_frames
+        A frame file that cannot be read (of a folder) is left out with a warning instead of
+        an error; ``meta["frame_indices"]`` then gives each frame read its index among the
+        folder's frames (naturally sorted, before ``start``/``stride``), and
+        ``meta["skipped_frames"]`` each one left out: ``{"frame", "file", "problem"}``.
 
     Returns
     -------
@@ -568,6 +708,10 @@ def read_sequence(
         ``F`` frames of ``(N_t, 3)`` float64 points in metres.
     """
     p = Path(path)
+    if not (np.isfinite(scale) and scale > 0):
+        raise ConfigError(f"scale must be a positive number (units to metres), got {scale:g}")
+    lo = None if crop_min is None else _corner(crop_min, "crop_min")
+    hi = None if crop_max is None else _corner(crop_max, "crop_max")
     fmt = detect_format(p)
     meta: dict[str, Any] = {}  # PointSequence.meta: what the reader used
     if stride < 1:
@@ -586,9 +730,9 @@ def read_sequence(
         frames = [frames[i] for i in idx]
         names = [names[i] for i in idx]
     else:
-        files = sorted((f for f in p.iterdir() if f.is_file()
-                        and FRAME_FORMATS.get(f.suffix.lower()) == fmt),
+        files = sorted((f for f in _frame_entries(p) if FRAME_FORMATS[f.suffix.lower()] == fmt),
                        key=lambda f: natural_key(f.name))
+        positions = list(range(len(files)))[start:stop:stride]
         files = files[start:stop:stride]
         intr = None
         if fmt == "depth-png":
@@ -599,23 +743,39 @@ def read_sequence(
                 intr = read_intrinsics(intr_path)
             meta["intrinsics"] = {"path": None if intr_path is None else str(intr_path),
                                   **{k: float(v) for k, v in intr.items()}}
-        frames = [read_frame(f, intr) for f in files]
-        names = [f.name for f in files]
+        frames, names, kept, skipped = [], [], [], []
+        for i, (f, pos) in enumerate(zip(files, positions)):
+            try:
+                frames.append(_read_frame_at(f, intr, i))
+            except InputError as exc:
+                if not skip_bad_frames:
+                    raise
+                log.warning("leaving out frame %d: %s", pos, exc)
+                skipped.append({"frame": pos, "file": f.name, "problem": exc.problem})
+                continue
+            names.append(f.name)
+            kept.append(pos)
+        if skip_bad_frames:
+            meta.update(frame_indices=kept, skipped_frames=skipped)
     if isolation is not None and isolation.active:
         meta["isolation"] = isolation.to_dict()
     if len(frames) < min_frames:
         raise InputError(f"sequence has {len(frames)} frame(s) after frame selection; "
                          f"at least {min_frames} are needed", p)
-    lo = None if crop_min is None else np.asarray(crop_min, dtype=np.float64)
-    hi = None if crop_max is None else np.asarray(crop_max, dtype=np.float64)
     out = []
     for i, (pts, name) in enumerate(zip(frames, names)):
-        pts = np.asarray(pts, dtype=np.float64) * scale
+        with np.errstate(over="ignore", invalid="ignore"):  # overflow is refused just below
+            pts = np.asarray(pts, dtype=np.float64) * scale
+        where = p / name if p.is_dir() else p
         bad = ~np.isfinite(pts).all(axis=1)
         if bad.any():
             raise InputError(f"{int(bad.sum())} point(s) with NaN/inf coordinates "
-                             f"(first at row {int(np.argmax(bad))})", p / name if
-                             p.is_dir() else p, frame=i)
+                             f"(first at row {int(np.argmax(bad))})", where, frame=i)
+        far = np.abs(pts).max(axis=1, initial=0.0) > MAX_COORD
+        if far.any():
+            raise InputError(f"{int(far.sum())} point(s) farther than {MAX_COORD:g} m from the "
+                             f"origin (first at row {int(np.argmax(far))}); pointrig works in "
+                             "metres", where, frame=i)
         if isolation is not None and isolation.active and fmt not in RECORDING_FORMATS:
             pts = isolate_points(pts, fmt, meta, isolation, p)
         if lo is not None:

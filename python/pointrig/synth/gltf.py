@@ -23,7 +23,9 @@ from __future__ import annotations
 
 import base64
 import json
+import stat
 import struct
+import urllib.parse
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -198,7 +200,51 @@ def _sample_channel(ch: _Channel, times: np.ndarray) -> np.ndarray:
     return out
 
 
+#: Largest glTF/GLB file, and largest buffer, that :func:`load_gltf` reads (bytes).
+MAX_GLTF_BYTES = 1 << 30
+
+
+def _regular_size(p: Path, what: str, model: Path) -> int:
+    """The size of regular file ``p`` (bytes); :class:`InputError` naming ``what`` when it is
+    not one (a FIFO, a device) or exceeds :data:`MAX_GLTF_BYTES`."""
+    try:
+        st = p.stat()
+    except OSError:
+        raise InputError(f"{what} not found", model) from None
+    if not stat.S_ISREG(st.st_mode):
+        raise InputError(f"{what} is not a regular file", model)
+    if st.st_size > MAX_GLTF_BYTES:
+        raise InputError(f"{what} holds {st.st_size} bytes, more than the {MAX_GLTF_BYTES} "
+                         "read", model)
+    return st.st_size
+
+
+def _external_buffer(model: Path, uri: str, i: int, byte_length: object) -> bytes:
+    """The bytes of buffer ``i`` stored in the file ``uri`` (relative, percent-encoded): only
+    a regular file inside the model's folder (no absolute path, ``..`` out of it, scheme or
+    link to elsewhere), at most :data:`MAX_GLTF_BYTES`, and only the ``byteLength`` the
+    buffer declares."""
+    rel = urllib.parse.unquote(uri)
+    if "://" in uri or uri.startswith("file:") or Path(rel).is_absolute():
+        raise InputError(f"glTF buffer {i} uri {uri!r} is not a relative file name; only "
+                         "files in the model's folder are read", model)
+    folder = model.parent.resolve()
+    target = (folder / rel).resolve()
+    if not target.is_relative_to(folder):
+        raise InputError(f"glTF buffer {i} uri {uri!r} points outside the model's folder; "
+                         "only files in it are read", model)
+    size = _regular_size(target, f"glTF buffer {i} file {uri!r}", model)
+    if not isinstance(byte_length, int) or isinstance(byte_length, bool) or byte_length < 0:
+        raise FormatError(f"glTF buffer {i} has no valid byteLength", model)
+    if byte_length > size:
+        raise FormatError(f"glTF buffer {i} file {uri!r} holds {size} bytes, the buffer "
+                          f"declares {byte_length}", model)
+    with open(target, "rb") as fh:
+        return fh.read(byte_length)
+
+
 def _read_container(path: Path) -> tuple[dict, list[bytes]]:
+    _regular_size(path, "the glTF file", path)
     raw = path.read_bytes()
     if raw[:4] == b"glTF":
         if len(raw) < 20:
@@ -235,10 +281,7 @@ def _read_container(path: Path) -> tuple[dict, list[bytes]]:
         elif uri.startswith("data:"):
             buffers.append(base64.b64decode(uri.split(",", 1)[1]))
         else:
-            bp = path.parent / uri
-            if not bp.exists():
-                raise InputError(f"glTF buffer file {uri!r} not found", path)
-            buffers.append(bp.read_bytes())
+            buffers.append(_external_buffer(path, uri, i, b.get("byteLength")))
     return doc, buffers
 
 
