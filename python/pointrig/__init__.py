@@ -13,6 +13,7 @@ from .config import (
     PipelineConfig,
     PreprocessConfig,
     RegistrationConfig,
+    RigConfig,
     StructureConfig,
     load_config,
 )
@@ -68,6 +69,7 @@ __all__ = [
     "PreprocessConfig",
     "RegistrationConfig",
     "RegistrationResult",
+    "RigConfig",
     "Skeleton",
     "StructureConfig",
     "StructureResult",

@@ -10,6 +10,8 @@ writes the outputs atomically:
 - ``skeleton.bvh``   the animated skeleton as motion capture (Blender, MotionBuilder);
 - ``skeleton.glb``   glTF 2.0: joints, skin, the rest points as a skinned point mesh and the
   animation (Blender, Godot, Unity, three.js), see :func:`pointrig.export.write_gltf`;
+- ``rig.glb``        the skinned surface of the subject on the same joints (``[rig] mesh``,
+  the ``rig`` extra; :mod:`pointrig.rig`);
 - ``skeleton.png``, ``skeleton.gif``  pictures (optional).
 
 The output stage that turns step 3's bones into the written skeleton (joint selection,
@@ -30,8 +32,10 @@ import numpy as np
 
 from .config import PipelineConfig
 from .export import write_bvh, write_gltf
+from .naming import apply_names, read_name_mapping
 from .output import build_skeleton, output_skeleton
 from .preprocess import remove_sparse_frames
+from .rig import rig_available
 from .sequence import PointSequence, check_units
 from .skeleton import Skeleton
 
@@ -64,6 +68,8 @@ class ExtractResult:
     #: the ``F`` observed clouds ``(N_t, 3)`` after that clean-up, as steps 1-3 and the
     #: joint-depth pass read them (metres)
     frames: list[np.ndarray] | None = None
+    #: ``(mesh, stats)`` of ``rig.glb`` (:func:`pointrig.rig.build_surface`) when written
+    rig: tuple[Any, Any] | None = None
 
 
 def extract(
@@ -75,6 +81,7 @@ def extract(
     stop_after: StopAfter = "joints",
     pictures: bool = True,
     progress: Progress | None = None,
+    bone_names: str | Path | None = None,
 ) -> ExtractResult:
     """Run the pipeline on a sequence and (if ``out_dir``) write the outputs.
 
@@ -94,6 +101,9 @@ def extract(
         Also write ``skeleton.png`` and ``skeleton.gif``.
     progress
         Called as ``progress(step, done, total, detail)``.
+    bone_names
+        A JSON file ``{joint name: new name}`` renaming joints after ``[rig] names``
+        (:func:`pointrig.naming.apply_names`).
 
     Raises
     ------
@@ -103,6 +113,8 @@ def extract(
     """
     config = config or PipelineConfig()
     check_units(seq, config.preprocess.max_extent)
+    mapping = None if bone_names is None else read_name_mapping(bone_names)
+    with_rig = out_dir is not None and stop_after == "joints" and rig_available(config.rig.mesh)
     out = None if out_dir is None else Path(out_dir)
     timings: dict[str, float] = {}
     n_input = [int(c) for c in seq.counts]
@@ -129,8 +141,10 @@ def extract(
         reg.rest_points, labels, st.bone_parent, joints_rest, R, T, weights, config,
         st.view_camera, observed=(seq.frames, final.points) if stop_after == "joints" else None,
         timings=timings)
+    result.skeleton.fps = config.rig.fps / config.preprocess.frame_stride
+    apply_names(result.skeleton, config.rig.names, mapping, bone_names or "")
     if out is not None:
-        _write_outputs(out, seq, reg, result, config, stop_after, n_input, pictures)
+        _write_outputs(out, seq, reg, result, config, stop_after, n_input, pictures, with_rig)
     return result
 
 
@@ -236,11 +250,23 @@ def _step3_with_refinement(seq: PointSequence, reg: Any, st: Any, config: Pipeli
 
 def _write_outputs(out: Path, seq: PointSequence, reg: Any, result: ExtractResult,
                    config: PipelineConfig, stop_after: StopAfter, n_input: list[int],
-                   pictures: bool) -> None:
+                   pictures: bool, with_rig: bool = False) -> None:
     """Write ``result.skeleton`` into ``out``: ``skeleton.json`` (with the input's description
-    and every parameter), ``weights.npz``, ``skeleton.bvh``, ``skeleton.glb`` and, with
+    and every parameter), ``weights.npz``, ``skeleton.bvh``, ``skeleton.glb``, with
+    ``with_rig`` the skinned surface ``rig.glb`` (its seconds in ``timings["rig"]``) and, with
     ``pictures``, ``skeleton.png`` and ``skeleton.gif``; the paths go to ``result.files``."""
     skel = result.skeleton
+    fps = skel.fps or 30.0
+    if with_rig:
+        from .rig import build_surface
+
+        t0 = time.perf_counter()
+        final = result.refined_registration or reg
+        rest_frame = int((reg.params or {}).get("rest_frame_index", -1))
+        result.rig = build_surface(skel, config.rig, result.frames, final.points, rest_frame)
+        write_gltf(out / "rig.glb", skel, fps=fps, mesh=result.rig[0])
+        result.files["rig"] = out / "rig.glb"
+        result.timings["rig"] = time.perf_counter() - t0
     source = {"input": str(seq.source), "format": seq.fmt, "frames": len(seq),
               "points_per_frame": n_input,
               "points_used_per_frame": [int(c) for c in seq.counts],
@@ -250,8 +276,8 @@ def _write_outputs(out: Path, seq: PointSequence, reg: Any, result: ExtractResul
     params["timings_s"] = {k: round(v, 3) for k, v in result.timings.items()}
     skel.save_json(out / "skeleton.json", source=source, params=params)
     skel.save_weights(out / "weights.npz")
-    write_bvh(out / "skeleton.bvh", skel)
-    write_gltf(out / "skeleton.glb", skel)
+    write_bvh(out / "skeleton.bvh", skel, fps=fps)
+    write_gltf(out / "skeleton.glb", skel, fps=fps)
     result.files["skeleton"] = out / "skeleton.json"
     result.files["weights"] = out / "weights.npz"
     result.files["bvh"] = out / "skeleton.bvh"
