@@ -52,8 +52,10 @@ def check_gltf(path: str, fps: float, frames: list[int]) -> dict:
     arm = _armature()
     rng = _action_range(arm)
     at = [rng[0] + t for t in frames]
-    meshes = [o for o in bpy.context.scene.objects if o.type == "MESH"]
-    assert len(meshes) == 1, f"expected one mesh, found {len(meshes)}"
+    # skinned meshes only (the importer adds a bone-display shape too)
+    meshes = [o for o in bpy.context.scene.objects if o.type == "MESH"
+              and any(m.type == "ARMATURE" for m in o.modifiers)]
+    assert len(meshes) == 1, f"expected one skinned mesh, found {len(meshes)}"
     mesh = meshes[0]
     rest = [list(mesh.matrix_world @ v.co) for v in mesh.data.vertices]
     deformed = {}

@@ -5,9 +5,9 @@ frame's one view missed or sampled sparsely, the observed points of a few frames
 to the rest pose by the inverse of the registration's motion (each observed point ``x`` near
 registered point ``y_m^t`` goes to ``q_m + (R_b^t)^T (x - y_m^t)``, ``b`` the point's main
 bone). All points are splatted into a voxel grid; the surface is the level set at ``radius``
-of their smoothed distance field (marching cubes, scikit-image), so it is closed and lies
-about ``radius`` outside the points: a thin shell around a surface seen from one side, a
-body around one seen from all sides. Small islands (outliers) are dropped, the mesh is
+of their smoothed distance field (marching cubes, scikit-image) with its enclosed hollows
+filled, so it is closed and lies about ``radius`` outside the points: a thin shell around a
+surface seen from one side, the body's outside around one seen from all sides. Small islands (outliers) are dropped, the mesh is
 decimated to the face budget (fast-simplification, quadric error) and given area-weighted
 vertex normals.
 
@@ -105,8 +105,25 @@ def _vertex_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     n = np.zeros_like(v)
     for k in range(3):
         np.add.at(n, f[:, k], fn)
-    ln = np.linalg.norm(n, axis=1, keepdims=True)
-    return n / np.where(ln > 0, ln, 1.0)
+    ln = np.linalg.norm(n, axis=1)
+    bad = ln < 1e-12 * max(float(ln.max()), 1e-300)
+    if bad.any():  # faces that cancel (a fold): the normal of one of them
+        own = np.full(len(v), -1)
+        for k in range(3):
+            own[f[:, k]] = np.arange(len(f))
+        n[bad] = fn[own[bad]]
+        ln = np.linalg.norm(n, axis=1)
+    return n / np.where(ln > 0, ln, 1.0)[:, None]
+
+
+def _clean(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The mesh without zero-area faces and without vertices no face uses."""
+    area = np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
+    f = f[area > 1e-14]
+    used = np.unique(f)
+    remap = np.full(len(v), -1)
+    remap[used] = np.arange(len(used))
+    return v[used], remap[f]
 
 
 def _signed_volume(v: np.ndarray, f: np.ndarray) -> float:
@@ -177,15 +194,18 @@ def build_surface(skel: Skeleton, cfg: RigConfig, frames: list[np.ndarray] | Non
     if frames is not None and registered is not None and cfg.fill_frames > 0:
         filled = _fill_points(skel, frames, registered, cfg.fill_frames, rest_frame, spacing)
         pts = np.concatenate([q, filled])
+    sub = pts[:: max(1, len(pts) // 20000)]
+    nn_sub = cKDTree(sub).query(sub, k=2)[0][:, 1]
+    dense = float(np.median(nn_sub))
     if cfg.voxel > 0:
         h = float(cfg.voxel)
     else:
         # half the spacing of the points the surface is built from, within 5 mm - 2 cm
-        sub = pts[:: max(1, len(pts) // 20000)]
-        dense = float(np.median(cKDTree(sub).query(sub, k=2)[0][:, 1]))
         h = float(np.clip(0.5 * max(dense, spacing / 4), 0.005, 0.02))
-    radius = 2.0 * h
-    pad = radius + 3 * h
+    # the level: two voxels, and more than the gaps between the points so that the shell has
+    # no holes; if a 1.5 x larger level closes a body (encloses a hollow), that one
+    radius = max(2.0 * h, 1.5 * float(np.percentile(nn_sub, 99)))
+    pad = 1.5 * radius + 3 * h
     lo = pts.min(axis=0) - pad
     shape = np.ceil((pts.max(axis=0) + pad - lo) / h).astype(int) + 1
     occ = np.zeros(shape, dtype=bool)
@@ -193,6 +213,15 @@ def build_surface(skel: Skeleton, cfg: RigConfig, frames: list[np.ndarray] | Non
     occ[idx[:, 0], idx[:, 1], idx[:, 2]] = True
     dist = ndimage.distance_transform_edt(~occ, sampling=h)
     dist = ndimage.gaussian_filter(dist, sigma=1.0)
+    # a body seen from all sides would have a second, inner sheet around its hollow inside:
+    # fill the hollows so that only the outer surface is left
+    for r in (radius, 1.5 * radius):
+        solid = dist < r
+        hollow = ndimage.binary_fill_holes(solid) & ~solid
+        if hollow.any():
+            radius = r
+            dist[hollow] = 0.0
+            break
     if not (dist.min() < radius < dist.max()):
         raise PointrigError("the rest points give no surface (too few points)")
     v, f, _, _ = marching_cubes(dist, level=radius, spacing=(h, h, h))
@@ -203,6 +232,7 @@ def build_surface(skel: Skeleton, cfg: RigConfig, frames: list[np.ndarray] | Non
         v, f = fast_simplification.simplify(v, f.astype(np.int32), target_count=cfg.faces)
         f = np.asarray(f, dtype=np.int64)
         v = np.asarray(v, dtype=float)
+    v, f = _clean(v, f)
     if _signed_volume(v, f) < 0:
         f = f[:, ::-1].copy()
     normals = _vertex_normals(v, f)
@@ -212,7 +242,7 @@ def build_surface(skel: Skeleton, cfg: RigConfig, frames: list[np.ndarray] | Non
 
 
 def _vertex_weights(v: np.ndarray, f: np.ndarray, q: np.ndarray, W: np.ndarray,
-                    spacing: float, k: int = 8, iterations: int = 3) -> np.ndarray:
+                    spacing: float, k: int = 8, iterations: int = 10) -> np.ndarray:
     """``(V, J)`` weights: Gaussian average of the ``k`` nearest rest points' rows, smoothed
     ``iterations`` times over the mesh edges (half own, half the neighbours' mean), cut to the
     4 largest and renormalised."""
