@@ -216,3 +216,60 @@ def test_blender_imports_the_rig_and_the_bvh_as_skeleton_json(rig_out):
     R, T = joint_transforms(sk)
     assert np.allclose(np.einsum("fjab,jb->fja", R, sk.rest_positions) + T, sk.joint_positions)
     assert CAMERA_TO_BLENDER[2, 1] == -1.0  # camera y down -> Blender z up
+
+
+def _square(center, half, z, outward_to_camera=True):
+    """Two triangles of a square at depth ``z`` (camera frame), facing the camera or away."""
+    cx, cy = center
+    v = np.array([[cx - half, cy - half, z], [cx + half, cy - half, z],
+                  [cx + half, cy + half, z], [cx - half, cy + half, z]])
+    f = np.array([[0, 2, 1], [0, 3, 2]])  # normal -z: towards the camera (y down, x right)
+    return v, (f if outward_to_camera else f[:, ::-1])
+
+
+def test_render_mesh_occludes_shades_and_culls():
+    from pointrig.viz import _View, render_mesh
+
+    near_v, near_f = _square((0.0, 0.0), 0.2, 1.0)
+    far_v, far_f = _square((0.0, 0.0), 0.5, 2.0)
+    back_v, back_f = _square((0.4, 0.4), 0.05, 0.5, outward_to_camera=False)
+    v = np.concatenate([near_v, far_v, back_v])
+    f = np.concatenate([near_f, far_f + 4, back_f + 8])
+    cols = np.array([[250, 0, 0]] * 2 + [[0, 0, 250]] * 2 + [[0, 250, 0]] * 2, float)
+    view = _View(v, 200)
+    img = np.asarray(render_mesh(v, f, cols, None, None, view))
+
+    def px(x, y):
+        u, w = view.project(np.array([[x, y, 0.0]]))[0]
+        return img[int(round(w)), int(round(u))]
+
+    assert tuple(px(0.0, 0.0)) == (250, 0, 0)  # the near square, facing the light fully
+    assert tuple(px(0.35, -0.35)) == (0, 0, 250)  # the far square around it
+    assert tuple(px(0.4, 0.4)) == (0, 0, 250)  # the small square faces away: culled
+    assert tuple(px(0.54, 0.54)) == (24, 24, 28)  # outside every face: background
+
+
+def test_distinct_poses_picks_the_extremes():
+    from pointrig.viz import _distinct_poses
+
+    F = 9
+    j = np.zeros((F, 2, 3))
+    j[:, 1, 0] = np.sin(np.linspace(0, np.pi, F))  # out to 1 at frame 4 and back
+    j[6, 1, 1] = 3.0  # one odd pose
+    assert _distinct_poses(j) == [0, 4, 6]
+
+
+def test_rig_png_three_panels(rig_out, tmp_path):
+    from PIL import Image
+
+    from pointrig.viz import save_rig_png
+
+    _, sk, mesh, _ = rig_out
+    R, T = joint_transforms(sk)
+    save_rig_png(tmp_path / "rig.png", mesh.vertices, mesh.faces, mesh.weights, R, T,
+                 sk.joint_positions, sk.parents, size=200)
+    im = np.asarray(Image.open(tmp_path / "rig.png"))
+    assert im.shape == (200, 600, 3)
+    for k in range(3):  # every panel shows the surface (not only background)
+        panel = im[:, 200 * k:200 * (k + 1)]
+        assert (np.abs(panel.astype(int) - [24, 24, 28]).sum(2) > 30).mean() > 0.05

@@ -254,7 +254,8 @@ def _write_outputs(out: Path, seq: PointSequence, reg: Any, result: ExtractResul
     """Write ``result.skeleton`` into ``out``: ``skeleton.json`` (with the input's description
     and every parameter), ``weights.npz``, ``skeleton.bvh``, ``skeleton.glb``, with
     ``with_rig`` the skinned surface ``rig.glb`` (its seconds in ``timings["rig"]``) and, with
-    ``pictures``, ``skeleton.png`` and ``skeleton.gif``; the paths go to ``result.files``."""
+    ``pictures``, ``skeleton.png``, ``skeleton.gif`` (and ``rig.png``: the surface in three
+    poses); the paths go to ``result.files``."""
     skel = result.skeleton
     fps = skel.fps or 30.0
     if with_rig:
@@ -286,6 +287,15 @@ def _write_outputs(out: Path, seq: PointSequence, reg: Any, result: ExtractResul
         _write_pictures(out, seq, result.refined_registration or reg, skel)
         result.files["png"] = out / "skeleton.png"
         result.files["gif"] = out / "skeleton.gif"
+        if result.rig is not None:
+            from .export import joint_transforms
+            from .viz import save_rig_png
+
+            mesh = result.rig[0]
+            R, T = joint_transforms(skel)
+            save_rig_png(out / "rig.png", mesh.vertices, mesh.faces, mesh.weights, R, T,
+                         skel.joint_positions, skel.parents)
+            result.files["rig_png"] = out / "rig.png"
 
 
 def _write_pictures(out: Path, seq: PointSequence, reg: Any, skel: Skeleton) -> None:
