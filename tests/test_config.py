@@ -30,6 +30,7 @@ BAD = [
     (RigConfig, "fps", float("nan")),
     (RigConfig, "names", "human"),
     (RigConfig, "mesh", "yes"),
+    (RigConfig, "usd", "usdz"),
     (RigConfig, "faces", 10),
     (RigConfig, "voxel", -0.01),
     (RigConfig, "fill_frames", -1),

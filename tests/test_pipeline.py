@@ -42,7 +42,8 @@ def test_demo_rig_opens_in_blender_on_skeleton_json_joints(demo_run):
 
 def test_outputs_exist_and_follow_contract(demo_run):
     for name in ("skeleton.json", "weights.npz", "registration.npz", "skeleton.png",
-                 "skeleton.gif", "skeleton.bvh", "skeleton.glb", "rig.glb", "rig.png"):
+                 "skeleton.gif", "skeleton.bvh", "skeleton.glb", "rig.glb", "rig.png",
+                 "rig.usda"):
         assert (demo_run / name).stat().st_size > 0, name
     doc = json.loads((demo_run / "skeleton.json").read_text())
     assert doc["format"] == SKELETON_FORMAT and doc["units"] == "m"

@@ -273,3 +273,60 @@ def test_rig_png_three_panels(rig_out, tmp_path):
     for k in range(3):  # every panel shows the surface (not only background)
         panel = im[:, 200 * k:200 * (k + 1)]
         assert (np.abs(panel.astype(int) - [24, 24, 28]).sum(2) > 30).mean() > 0.05
+
+
+def test_usd_skinning_by_usd_core_matches_pointrig(rig_out, tmp_path):
+    """rig.usda read by usd-core's UsdSkel: joints (skeleton space) at skeleton.json's joints
+    turned y-up, and UsdSkel's own skinning of the mesh equal to pointrig's LBS, at every
+    frame; the stage's time codes run at the frame rate."""
+    from pxr import Usd, UsdSkel
+
+    from pointrig.export import CAMERA_TO_YUP
+    from pointrig.kinematics import skin
+    from pointrig.usd import write_usd
+
+    _, sk, mesh, _ = rig_out
+    write_usd(tmp_path / "rig.usda", sk, mesh, fps=25.0)
+    stage = Usd.Stage.Open(str(tmp_path / "rig.usda"))
+    assert stage.GetTimeCodesPerSecond() == 25.0
+    assert stage.GetEndTimeCode() == sk.n_frames - 1
+    cache = UsdSkel.Cache()
+    root = UsdSkel.Root(stage.GetPrimAtPath("/Rig"))
+    cache.Populate(root, Usd.PrimDefaultPredicate)
+    sq = cache.GetSkelQuery(UsdSkel.Skeleton(stage.GetPrimAtPath("/Rig/Skeleton")))
+    mq = cache.GetSkinningQuery(stage.GetPrimAtPath("/Rig/Surface"))
+    rest = np.array(stage.GetPrimAtPath("/Rig/Surface").GetAttribute("points").Get())
+    R, T = joint_transforms(sk)
+    ours = skin(mesh.vertices, mesh.weights, R, T) @ CAMERA_TO_YUP.T
+    names = list(sq.GetJointOrder())
+    assert len(names) == sk.n_joints
+    for t in range(sk.n_frames):
+        xf = sq.ComputeJointSkelTransforms(Usd.TimeCode(t))
+        heads = np.array([list(m.ExtractTranslation()) for m in xf])
+        np.testing.assert_allclose(heads, sk.joint_positions[t] @ CAMERA_TO_YUP.T, atol=1e-5)
+        pts = rest.copy()
+        from pxr import Vt
+
+        pts_vt = Vt.Vec3fArray.FromNumpy(pts.astype(np.float32))
+        ok = mq.ComputeSkinnedPoints(sq.ComputeSkinningTransforms(Usd.TimeCode(t)), pts_vt,
+                                     Usd.TimeCode(t))
+        assert ok
+        np.testing.assert_allclose(np.array(pts_vt), ours[t], atol=1e-4)
+
+
+def test_missing_extras_are_one_line_errors_only_when_asked(monkeypatch):
+    import sys
+
+    from pointrig.errors import PointrigError
+    from pointrig.rig import rig_available
+    from pointrig.usd import usd_available
+
+    assert rig_available("auto") and usd_available("auto")
+    assert not rig_available("off") and not usd_available("off")
+    monkeypatch.setitem(sys.modules, "fast_simplification", None)  # import fails
+    monkeypatch.setitem(sys.modules, "pxr.UsdSkel", None)
+    assert not rig_available("auto") and not usd_available("auto")
+    with pytest.raises(PointrigError, match=r"pip install 'pointrig\[rig\]'"):
+        rig_available("on")
+    with pytest.raises(PointrigError, match=r"pip install 'pointrig\[usd\]'"):
+        usd_available("on")

@@ -646,6 +646,8 @@ class RigConfig:
     names: str = "tree"
     # rig.glb: "auto" (when the rig extra is installed), "on" (an error without it) or "off"
     mesh: str = "auto"
+    # rig.usda (UsdSkel) beside rig.glb: "auto" (when the usd extra is installed), "on", "off"
+    usd: str = "auto"
     faces: int = 20000  # triangle budget of the surface after decimation
     # voxel of the surface reconstruction, metres (0 = from the rest points' spacing)
     voxel: float = 0.0
@@ -657,6 +659,7 @@ class RigConfig:
         c.real("fps", "(0, 1000]")
         c.choice("names", ("tree", "index"))
         c.choice("mesh", ("auto", "on", "off"))
+        c.choice("usd", ("auto", "on", "off"))
         c.int("faces", 100)
         c.real("voxel", "[0, 0.2]")
         c.int("fill_frames", 0)

@@ -11,7 +11,8 @@ writes the outputs atomically:
 - ``skeleton.glb``   glTF 2.0: joints, skin, the rest points as a skinned point mesh and the
   animation (Blender, Godot, Unity, three.js), see :func:`pointrig.export.write_gltf`;
 - ``rig.glb``        the skinned surface of the subject on the same joints (``[rig] mesh``,
-  the ``rig`` extra; :mod:`pointrig.rig`);
+  the ``rig`` extra; :mod:`pointrig.rig`); ``rig.usda`` the same as UsdSkel (``[rig] usd``,
+  the ``usd`` extra; :mod:`pointrig.usd`);
 - ``skeleton.png``, ``skeleton.gif``  pictures (optional).
 
 The output stage that turns step 3's bones into the written skeleton (joint selection,
@@ -38,6 +39,7 @@ from .preprocess import remove_sparse_frames
 from .rig import rig_available
 from .sequence import PointSequence, check_units
 from .skeleton import Skeleton
+from .usd import usd_available
 
 __all__ = ["ExtractResult", "build_skeleton", "extract", "output_skeleton"]
 
@@ -115,6 +117,7 @@ def extract(
     check_units(seq, config.preprocess.max_extent)
     mapping = None if bone_names is None else read_name_mapping(bone_names)
     with_rig = out_dir is not None and stop_after == "joints" and rig_available(config.rig.mesh)
+    with_usd = with_rig and usd_available(config.rig.usd)
     out = None if out_dir is None else Path(out_dir)
     timings: dict[str, float] = {}
     n_input = [int(c) for c in seq.counts]
@@ -144,7 +147,8 @@ def extract(
     result.skeleton.fps = config.rig.fps / config.preprocess.frame_stride
     apply_names(result.skeleton, config.rig.names, mapping, bone_names or "")
     if out is not None:
-        _write_outputs(out, seq, reg, result, config, stop_after, n_input, pictures, with_rig)
+        _write_outputs(out, seq, reg, result, config, stop_after, n_input, pictures, with_rig,
+                       with_usd)
     return result
 
 
@@ -250,10 +254,11 @@ def _step3_with_refinement(seq: PointSequence, reg: Any, st: Any, config: Pipeli
 
 def _write_outputs(out: Path, seq: PointSequence, reg: Any, result: ExtractResult,
                    config: PipelineConfig, stop_after: StopAfter, n_input: list[int],
-                   pictures: bool, with_rig: bool = False) -> None:
+                   pictures: bool, with_rig: bool = False, with_usd: bool = False) -> None:
     """Write ``result.skeleton`` into ``out``: ``skeleton.json`` (with the input's description
     and every parameter), ``weights.npz``, ``skeleton.bvh``, ``skeleton.glb``, with
-    ``with_rig`` the skinned surface ``rig.glb`` (its seconds in ``timings["rig"]``) and, with
+    ``with_rig`` the skinned surface ``rig.glb`` (and with ``with_usd`` ``rig.usda``; their
+    seconds in ``timings["rig"]``) and, with
     ``pictures``, ``skeleton.png``, ``skeleton.gif`` (and ``rig.png``: the surface in three
     poses); the paths go to ``result.files``."""
     skel = result.skeleton
@@ -267,6 +272,11 @@ def _write_outputs(out: Path, seq: PointSequence, reg: Any, result: ExtractResul
         result.rig = build_surface(skel, config.rig, result.frames, final.points, rest_frame)
         write_gltf(out / "rig.glb", skel, fps=fps, mesh=result.rig[0])
         result.files["rig"] = out / "rig.glb"
+        if with_usd:
+            from .usd import write_usd
+
+            write_usd(out / "rig.usda", skel, result.rig[0], fps=fps)
+            result.files["usd"] = out / "rig.usda"
         result.timings["rig"] = time.perf_counter() - t0
     source = {"input": str(seq.source), "format": seq.fmt, "frames": len(seq),
               "points_per_frame": n_input,
