@@ -87,3 +87,13 @@ def test_mapping_file_must_be_an_object_of_strings(tmp_path):
     path.write_text("{")
     with pytest.raises(InputError, match="not valid JSON"):
         read_name_mapping(path)
+
+
+def test_a_human_rooted_at_the_chest_gets_rig_names():
+    # 0 chest (root), 1 neck, 2 l shoulder, 3 r shoulder, 4 belly, 5 pelvis, 6 l knee,
+    # 7 r knee: the trunk goes down from the root and branches into the legs
+    parents = np.array([-1, 0, 0, 0, 0, 4, 5, 5])
+    rest = np.array([[0, -0.45, 2], [0, -0.7, 2], [0.25, -0.45, 2], [-0.25, -0.45, 2],
+                     [0, -0.2, 2], [0, 0, 2], [0.1, 0.45, 2], [-0.1, 0.45, 2]], float)
+    assert tree_names(parents, rest) == ["root", "head_1", "arm_l_1", "arm_r_1", "spine_1",
+                                         "spine_2", "leg_l_1", "leg_r_1"]

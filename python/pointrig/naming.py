@@ -4,9 +4,11 @@
 name per chain of joints from a branching joint to the next branch or a tip, numbered along
 the chain (``spine_1``, ``spine_2``, ``arm_l_1``, ...). A chain's kind comes from its
 direction in the rest pose, in the y-up frame of the exports (``export.CAMERA_TO_YUP``):
-up from the root ``spine``, up from elsewhere ``head``, down ``leg``, else (sideways or
+up ``head`` (``spine`` from the root when nothing else is), down ``leg``, else (sideways or
 along the view) ``arm``. Sides assume the subject faces the camera: the subject's left is the
-camera's ``+x``, so a chain ending at ``x`` above its start is ``_l``. When two chains would
+camera's ``+x``, so a chain ending at ``x`` above its start is ``_l``. From the root, a chain
+that ends in a branching (the trunk), or the only one going down, is ``spine``. When two
+chains would
 share a name (a quadruped's legs, a hand's fingers), the tree's shape does not allow these
 names and every chain is named ``chain_a``, ``chain_b``, ... in the order of its first joint's
 rest position; so names are the same for the same rest skeleton, run after run.
@@ -50,15 +52,20 @@ def _chains(parents: np.ndarray) -> tuple[list[list[int]], list[int]]:
     return chains, starts
 
 
-def _kind(d: np.ndarray, from_root: bool) -> str:
-    """A chain's kind from its direction ``d (3,)`` (y-up frame, start to end)."""
-    a = np.abs(d)
-    axis = int(np.argmax(a))
-    if axis == 1:
-        if d[1] > 0:
-            return "spine" if from_root else "head"
-        return "leg_l" if d[0] > 0 else "leg_r"
-    return "arm_l" if d[0] > 0 else "arm_r"
+def _kind(d: np.ndarray, from_root: bool, branches: bool, spine_elsewhere: bool,
+          lone_down: bool) -> str:
+    """A chain's kind from its direction ``d (3,)`` (y-up frame, start to end), whether it
+    starts at the root, ends in a branching, whether another chain from the root is the
+    spine, and whether it is the only chain going down from its start."""
+    up = int(np.argmax(np.abs(d))) == 1
+    if from_root and branches:
+        return "spine"
+    if up and d[1] > 0:
+        return "head" if (spine_elsewhere or not from_root) else "spine"
+    if up and from_root and lone_down and not spine_elsewhere:
+        return "spine"
+    side = "_l" if d[0] > 0 else "_r"
+    return ("leg" if up else "arm") + side
 
 
 def tree_names(parents: np.ndarray, rest_positions: np.ndarray) -> list[str]:
@@ -83,9 +90,24 @@ def tree_names(parents: np.ndarray, rest_positions: np.ndarray) -> list[str]:
     root = int(np.flatnonzero(parents < 0)[0])
     names[root] = "root"
     chains, starts = _chains(parents)
+    ends = {c[-1] for c in chains}
+    starts_at = {j: [i for i, st in enumerate(starts) if st == j] for j in ends | {root}}
+    branches = [len(starts_at.get(c[-1], [])) >= 2 for c in chains]
+    dirs = [rest[c[-1]] - rest[st] for c, st in zip(chains, starts)]
+
+    def down(i: int) -> bool:
+        return int(np.argmax(np.abs(dirs[i]))) == 1 and dirs[i][1] < 0
+
+    from_root = [i for i in range(len(chains)) if starts[i] == root]
+    trunk = [i for i in from_root if branches[i]]
+    downs = [i for i in from_root if down(i)]
     kinds = []
-    for chain, start in zip(chains, starts):
-        kinds.append(_kind(rest[chain[-1]] - rest[start], start == root))
+    for i in range(len(chains)):
+        at_root = starts[i] == root
+        kinds.append(_kind(dirs[i], at_root, branches[i],
+                           spine_elsewhere=any(k != i for k in trunk) or (
+                               at_root and not down(i) and len(downs) == 1 and not trunk),
+                           lone_down=len(downs) == 1))
     if len(set(kinds)) < len(kinds):
         order = sorted(range(len(chains)),
                        key=lambda i: (*np.round(rest[chains[i][0]], 4), i))

@@ -195,13 +195,15 @@ def build_surface(skel: Skeleton, cfg: RigConfig, frames: list[np.ndarray] | Non
         filled = _fill_points(skel, frames, registered, cfg.fill_frames, rest_frame, spacing)
         pts = np.concatenate([q, filled])
     sub = pts[:: max(1, len(pts) // 20000)]
-    nn_sub = cKDTree(sub).query(sub, k=2)[0][:, 1]
+    nn_sub = cKDTree(pts).query(sub, k=2)[0][:, 1]
     dense = float(np.median(nn_sub))
     if cfg.voxel > 0:
         h = float(cfg.voxel)
     else:
-        # half the spacing of the points the surface is built from, within 5 mm - 2 cm
-        h = float(np.clip(0.5 * max(dense, spacing / 4), 0.005, 0.02))
+        # half the spacing of the points the surface is built from, and at least 1/160 of the
+        # subject's size (finer is not seen at the face budget and costs cubically), 3-30 mm
+        size = float(np.max(np.percentile(pts, 99, axis=0) - np.percentile(pts, 1, axis=0)))
+        h = float(np.clip(max(0.5 * dense, spacing / 8, size / 160), 0.003, 0.03))
     # the level: two voxels, and more than the gaps between the points so that the shell has
     # no holes; if a 1.5 x larger level closes a body (encloses a hollow), that one
     radius = max(2.0 * h, 1.5 * float(np.percentile(nn_sub, 99)))
