@@ -32,6 +32,7 @@ from typing import Any, Literal
 import numpy as np
 
 from .config import PipelineConfig
+from .errors import PointrigError
 from .export import write_bvh, write_gltf
 from .naming import apply_names, read_name_mapping
 from .output import build_skeleton, output_skeleton
@@ -145,7 +146,7 @@ def extract(
         st.view_camera, observed=(seq.frames, final.points) if stop_after == "joints" else None,
         timings=timings)
     result.skeleton.fps = config.rig.fps / config.preprocess.frame_stride
-    apply_names(result.skeleton, config.rig.names, mapping, bone_names or "")
+    apply_names(result.skeleton, config.rig.names, mapping, bone_names or "--bone-names")
     if out is not None:
         _write_outputs(out, seq, reg, result, config, stop_after, n_input, pictures, with_rig,
                        with_usd)
@@ -258,9 +259,9 @@ def _write_outputs(out: Path, seq: PointSequence, reg: Any, result: ExtractResul
     """Write ``result.skeleton`` into ``out``: ``skeleton.json`` (with the input's description
     and every parameter), ``weights.npz``, ``skeleton.bvh``, ``skeleton.glb``, with
     ``with_rig`` the skinned surface ``rig.glb`` (and with ``with_usd`` ``rig.usda``; their
-    seconds in ``timings["rig"]``) and, with
-    ``pictures``, ``skeleton.png``, ``skeleton.gif`` (and ``rig.png``: the surface in three
-    poses); the paths go to ``result.files``."""
+    seconds in ``timings["rig"]``; a surface that cannot be built is skipped with a warning
+    under ``[rig] mesh = "auto"``) and, with ``pictures``, ``skeleton.png``, ``skeleton.gif``
+    (and ``rig.png``: the surface in three poses); the paths go to ``result.files``."""
     skel = result.skeleton
     fps = skel.fps or 30.0
     if with_rig:
@@ -269,14 +270,21 @@ def _write_outputs(out: Path, seq: PointSequence, reg: Any, result: ExtractResul
         t0 = time.perf_counter()
         final = result.refined_registration or reg
         rest_frame = int((reg.params or {}).get("rest_frame_index", -1))
-        result.rig = build_surface(skel, config.rig, result.frames, final.points, rest_frame)
-        write_gltf(out / "rig.glb", skel, fps=fps, mesh=result.rig[0])
-        result.files["rig"] = out / "rig.glb"
-        if with_usd:
-            from .usd import write_usd
+        try:
+            result.rig = build_surface(skel, config.rig, result.frames, final.points,
+                                       rest_frame)
+        except PointrigError as exc:
+            if config.rig.mesh == "on":
+                raise
+            log.warning("rig.glb not written: %s", exc)
+        if result.rig is not None:
+            write_gltf(out / "rig.glb", skel, fps=fps, mesh=result.rig[0])
+            result.files["rig"] = out / "rig.glb"
+            if with_usd:
+                from .usd import write_usd
 
-            write_usd(out / "rig.usda", skel, result.rig[0], fps=fps)
-            result.files["usd"] = out / "rig.usda"
+                write_usd(out / "rig.usda", skel, result.rig[0], fps=fps)
+                result.files["usd"] = out / "rig.usda"
         result.timings["rig"] = time.perf_counter() - t0
     source = {"input": str(seq.source), "format": seq.fmt, "frames": len(seq),
               "points_per_frame": n_input,
