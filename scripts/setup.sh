@@ -5,8 +5,12 @@
 #   profile (the one `make test-rust` tests with, so the dependencies compile once) and
 #   pointrig installed editable, with its `pointrig` command in .venv/bin.
 #
+#   .venv-blender (Python 3.11) with Blender as a Python module (bpy, constraints-blender.txt),
+#   the real client the Blender import tests drive: about 1 GB on disk, 40 s to install from
+#   the package index (once; then only when constraints-blender.txt changes).
+#
 #   bash scripts/setup.sh                 # everything
-#   bash scripts/setup.sh --python-only   # the venv and its packages, no Rust build
+#   bash scripts/setup.sh --python-only   # the venvs and their packages, no Rust build
 #
 # Needs python3.11 (or python3 >= 3.11; PYTHON=... to choose) and a Rust toolchain (cargo).
 set -euo pipefail
@@ -54,6 +58,21 @@ if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
     -r .venv/.pointrig-requirements.txt
   rm -f .venv/.pointrig-installed  # the package's own install follows the new list
   echo "$want" > "$stamp"
+fi
+
+# Blender as a Python module, in a venv of its own (it pins its own numpy)
+bstamp=.venv-blender/.pointrig-deps
+bwant=$(sha256sum constraints-blender.txt | cut -c1-16)
+if [ "$(cat "$bstamp" 2>/dev/null)" != "$bwant" ]; then
+  echo "setup: installing Blender's Python module (bpy, about 1 GB) into .venv-blender"
+  # a failed install does not stop the set-up: tests/test_blender.py fails with its reason
+  if { [ -x .venv-blender/bin/python ] || "$PY" -m venv .venv-blender; } \
+      && .venv-blender/bin/python -m pip install -q --disable-pip-version-check \
+        -r constraints-blender.txt; then
+    echo "$bwant" > "$bstamp"
+  else
+    echo "setup: could not install bpy into .venv-blender; the Blender tests will fail" >&2
+  fi
 fi
 [ "$python_only" = 1 ] && exit 0
 

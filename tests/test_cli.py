@@ -8,6 +8,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from pointrig.cli import main
 from pointrig.io import write_sequence
@@ -71,3 +72,20 @@ def test_closed_stdout_pipe_ends_quietly():
         os.close(w)
     assert res.returncode == 141
     assert "Traceback" not in res.stderr and "BrokenPipe" not in res.stderr
+
+
+@pytest.mark.parametrize("text,what", [(None, "not found"), ("[1, 2]", "JSON object"),
+                                       ("{", "not valid JSON")])
+def test_bad_bone_names_file_fails_before_step_1(tmp_path, rng, capsys, text, what):
+    """--bone-names with a missing or malformed file: exit 1, one line naming the file, before
+    any step runs, nothing written."""
+    src = tmp_path / "seq"
+    write_sequence(src, [rng.normal(size=(300, 3)) for _ in range(3)])
+    names = tmp_path / "names.json"
+    if text is not None:
+        names.write_text(text)
+    out = tmp_path / "out"
+    assert main(["extract", str(src), "-o", str(out), "--bone-names", str(names)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "names.json" in err[0] and what in err[0]
+    assert not out.exists()

@@ -15,16 +15,25 @@ from pointrig.config import (
     PipelineConfig,
     PreprocessConfig,
     RegistrationConfig,
+    RigConfig,
     StructureConfig,
     apply_overrides,
 )
 from pointrig.errors import ConfigError
 
 STAGES = {PreprocessConfig: "preprocess", RegistrationConfig: "registration",
-          StructureConfig: "structure", JointsConfig: "joints"}
+          StructureConfig: "structure", JointsConfig: "joints", RigConfig: "rig"}
 
 #: (stage, field, a value it refuses): every field of every stage at least once
 BAD = [
+    (RigConfig, "fps", 0.0),
+    (RigConfig, "fps", float("nan")),
+    (RigConfig, "names", "human"),
+    (RigConfig, "mesh", "yes"),
+    (RigConfig, "usd", "usdz"),
+    (RigConfig, "faces", 10),
+    (RigConfig, "voxel", -0.01),
+    (RigConfig, "fill_frames", -1),
     (PreprocessConfig, "crop_min", (0.0, 1.0)),
     (PreprocessConfig, "crop_min", (0.0, float("nan"), 1.0)),
     (PreprocessConfig, "crop_max", (0.0, 0.0, "1")),

@@ -24,6 +24,7 @@ STAGES = {
     "registration": config.RegistrationConfig,
     "structure": config.StructureConfig,
     "joints": config.JointsConfig,
+    "rig": config.RigConfig,
 }
 
 _HEADING = re.compile(r"^## \[(\w+)\]\s*$")

@@ -1,4 +1,4 @@
-"""BVH export: forward kinematics of the written file reproduces a rigid skeleton's joints."""
+"""BVH and GLB exports: read back independently, they reproduce skeleton.json's joints."""
 
 from __future__ import annotations
 
@@ -37,54 +37,58 @@ def _parse_bvh(text: str):
     return names, np.array(parents), np.array(offsets), order, motion
 
 
-def test_bvh_forward_kinematics_matches_rigid_chain(rng):
-    # a 4-bone chain with branching: 0 root, 1 child of 0, 2 child of 1, 3 child of 0
-    parent = np.array([-1, 0, 1, 0])
-    c = np.array([[0, 0, 0], [0.3, 0, 0], [0.6, 0.05, 0], [-0.1, 0.4, 0]], float)
-    F = 6
-    R = np.zeros((F, 4, 3, 3))
-    T = np.zeros((F, 4, 3))
-    for t in range(F):
-        W = [None] * 4
-        pos = [None] * 4
-        for j in range(4):
-            local = Rotation.from_rotvec(rng.normal(scale=0.4, size=3)).as_matrix()
-            if parent[j] < 0:
-                W[j] = local
-                pos[j] = c[j] + rng.normal(size=3)
-            else:
-                p = parent[j]
-                W[j] = W[p] @ local
-                pos[j] = pos[p] + W[p] @ (c[j] - c[p])
-            R[t, j] = W[j]
-            T[t, j] = pos[j] - W[j] @ c[j]
-    skel = build_skeleton(np.zeros((1, 3)), parent, c, R, T, None, None)
-    import tempfile
-    from pathlib import Path
+#: the y-up turn of the exports, written out here: 180 degrees about x
+YUP = np.diag([1.0, -1.0, -1.0])
 
-    with tempfile.TemporaryDirectory() as d:
-        write_bvh(Path(d) / "a.bvh", skel)
-        names, parents, offsets, order, motion = _parse_bvh((Path(d) / "a.bvh").read_text())
-    assert len(names) == 4 and motion.shape == (F, 6 + 3 * 3)
+
+def _bvh_world_joints(names, parents, offsets, order, motion):
+    """Forward kinematics of a parsed BVH whose joints all have 6 channels (position, then
+    ZXY rotation): ``(F, J, 3)`` world joint positions in file order."""
+    F, J = len(motion), len(names)
+    out = np.zeros((F, J, 3))
     for t in range(F):
-        vals = list(motion[t])
+        vals = motion[t].reshape(J, 6)
         world = {}
-        posd = {}
-        for j in order:
+        for k, j in enumerate(order):
+            rot = Rotation.from_euler("ZXY", vals[k, 3:], degrees=True).as_matrix()
             if parents[j] < 0:
-                p = np.array(vals[:3])
-                vals = vals[3:]
-                rot = Rotation.from_euler("ZXY", vals[:3], degrees=True).as_matrix()
-                vals = vals[3:]
-                world[j], posd[j] = rot, p
+                world[j] = rot
+                out[t, j] = vals[k, :3]
             else:
-                rot = Rotation.from_euler("ZXY", vals[:3], degrees=True).as_matrix()
-                vals = vals[3:]
-                world[j] = world[parents[j]] @ rot
-                posd[j] = posd[parents[j]] + world[parents[j]] @ offsets[j]
-        got = np.array([posd[j] for j in range(4)])
-        idx = [skel.joint_names.index(n) for n in names]
-        np.testing.assert_allclose(got, skel.joint_positions[t, idx], atol=1e-5)
+                p = parents[j]
+                world[j] = world[p] @ rot
+                out[t, j] = out[t, p] + world[p] @ vals[k, :3]
+    return out
+
+
+def test_bvh_forward_kinematics_reproduces_skeleton_json_y_up(rng, tmp_path):
+    """Non-rigid joints (each joint between its two bones' predictions): the BVH's forward
+    kinematics equal skeleton.json's joint_positions turned y-up, at every frame, and its rest
+    offsets are the turned rest joints."""
+    import json
+
+    skel = _chain_skeleton(rng, F=7, gap=0.02)
+    skel.save_json(tmp_path / "skeleton.json")
+    write_bvh(tmp_path / "a.bvh", skel, fps=25.0)
+    text = (tmp_path / "a.bvh").read_text()
+    names, parents, offsets, order, motion = _parse_bvh(text)
+    assert "Frame Time: 0.04000000" in text
+    assert len(names) == 4 and motion.shape == (7, 4 * 6)
+    doc = json.loads((tmp_path / "skeleton.json").read_text())
+    jp = np.array(doc["joint_positions"])
+    idx = [[j["name"] for j in doc["joints"]].index(n) for n in names]
+    got = _bvh_world_joints(names, parents, offsets, order, motion)
+    np.testing.assert_allclose(got, jp[:, idx] @ YUP.T, atol=1e-5)
+    rest = np.array([j["rest_position"] for j in doc["joints"]])[idx] @ YUP.T
+    for j in range(1, 4):
+        np.testing.assert_allclose(offsets[j], rest[j] - rest[parents[j]], atol=1e-6)
+    # the rigid joints of a gap-free chain are reproduced as well (the old contract)
+    rigid = _chain_skeleton(rng, F=4, gap=0.0)
+    write_bvh(tmp_path / "b.bvh", rigid)
+    parsed = _parse_bvh((tmp_path / "b.bvh").read_text())
+    idx = [rigid.joint_names.index(n) for n in parsed[0]]
+    np.testing.assert_allclose(_bvh_world_joints(*parsed), rigid.joint_positions[:, idx] @ YUP.T,
+                               atol=1e-5)
 
 
 def _read_glb(path):
@@ -115,8 +119,10 @@ def _read_glb(path):
     return doc, acc
 
 
-def _chain_skeleton(rng, F=5):
-    """A branching 4-bone articulated chain with random motion and blended point weights."""
+def _chain_skeleton(rng, F=5, gap=0.0):
+    """A branching 4-bone articulated chain with random motion and blended point weights;
+    ``gap > 0`` moves every bone off the rigid chain by about that many metres, so a joint's
+    two bones disagree on it (as step 3's bones do)."""
     parent = np.array([-1, 0, 1, 0])
     c = np.array([[0, 0, 2.0], [0.3, 0, 2.0], [0.6, 0.05, 2.0], [-0.1, 0.4, 2.0]], float)
     R = np.zeros((F, 4, 3, 3))
@@ -130,7 +136,7 @@ def _chain_skeleton(rng, F=5):
             else:
                 p = parent[j]
                 W[j], pos[j] = W[p] @ local, pos[p] + W[p] @ (c[j] - c[p])
-            R[t, j], T[t, j] = W[j], pos[j] - W[j] @ c[j]
+            R[t, j], T[t, j] = W[j], pos[j] - W[j] @ c[j] + rng.normal(scale=gap, size=3)
     q = c[rng.integers(0, 4, 60)] + rng.normal(scale=0.1, size=(60, 3))
     w = rng.random((60, 4)) ** 3
     w /= w.sum(1, keepdims=True)
@@ -138,12 +144,18 @@ def _chain_skeleton(rng, F=5):
 
 
 def test_gltf_skinning_and_joints_reproduce_the_skeleton(rng, tmp_path):
-    from pointrig.export import write_gltf
+    from pointrig.export import joint_transforms, write_gltf
+    from pointrig.kinematics import skin as lbs_skin
 
-    skel = _chain_skeleton(rng)
+    skel = _chain_skeleton(rng, gap=0.02)
     fps = 25.0
+    # the joints are not where step 3's bones carry them (else this checks nothing new)
+    own = np.einsum("fjab,jb->fja", skel.bone_rotations, skel.rest_positions) \
+        + skel.bone_translations
+    assert np.abs(own - skel.joint_positions).max() > 0.005
     write_gltf(tmp_path / "a.glb", skel, fps=fps)
     doc, acc = _read_glb(tmp_path / "a.glb")
+    assert doc["asset"]["extras"]["fps"] == fps
     nodes = doc["nodes"]
     parent_of = {ch: i for i, n in enumerate(nodes) for ch in n.get("children", [])}
     anim = doc["animations"][0]
@@ -185,8 +197,8 @@ def test_gltf_skinning_and_joints_reproduce_the_skeleton(rng, tmp_path):
         jm = np.stack([world(n) @ ibm[i] for i, n in enumerate(skin["joints"])])
         # skinned points (viewer) vs pointrig's LBS, both in the glTF (y-up) frame
         viewer = np.einsum("mk,mkab,mb->ma", wts, jm[jidx], np.c_[pos, np.ones(len(pos))])[:, :3]
-        lbs = np.einsum("mj,jab,mb->ma", skel.weights, skel.bone_rotations[t],
-                        skel.rest_points) + skel.weights @ skel.bone_translations[t]
+        Rj, Tj = joint_transforms(skel)
+        lbs = lbs_skin(skel.rest_points, skel.weights, Rj[t:t + 1], Tj[t:t + 1])[0]
         # the file keeps the 4 largest weights: all 4 bones here, so exact up to float32
         np.testing.assert_allclose(viewer, lbs @ conv[:3, :3].T, atol=2e-5)
         # joint node origins = the articulated skeleton's joints

@@ -26,9 +26,24 @@ def demo_run(tmp_path_factory):
     return out
 
 
+def test_demo_rig_opens_in_blender_on_skeleton_json_joints(demo_run):
+    """The demo's rig.glb and skeleton.bvh imported into Blender: one bone per joint, every
+    frame, joints within 1 mm of skeleton.json at three frames, the mesh Blender deforms
+    within 1 mm of pointrig's skinning; the frame rate recorded (30 fps default)."""
+    from rig_helpers import compare_with_blender
+
+    doc = json.loads((demo_run / "skeleton.json").read_text())
+    assert doc["fps"] == 30.0 and doc["params"]["timings_s"]["rig"] > 0
+    fig = compare_with_blender(demo_run)
+    assert fig["bones"] == len(doc["joints"])
+    assert fig["gltf_frames"] == fig["bvh_frames"] == doc["source"]["frames"]
+    assert max(fig["gltf_joint_mm"], fig["bvh_joint_mm"], fig["mesh_mm"]) < 1.0
+
+
 def test_outputs_exist_and_follow_contract(demo_run):
     for name in ("skeleton.json", "weights.npz", "registration.npz", "skeleton.png",
-                 "skeleton.gif", "skeleton.bvh", "skeleton.glb"):
+                 "skeleton.gif", "skeleton.bvh", "skeleton.glb", "rig.glb", "rig.png",
+                 "rig.usda"):
         assert (demo_run / name).stat().st_size > 0, name
     doc = json.loads((demo_run / "skeleton.json").read_text())
     assert doc["format"] == SKELETON_FORMAT and doc["units"] == "m"

@@ -13,6 +13,7 @@ from .config import (
     PipelineConfig,
     PreprocessConfig,
     RegistrationConfig,
+    RigConfig,
     StructureConfig,
     load_config,
 )
@@ -70,6 +71,7 @@ __all__ = [
     "PreprocessConfig",
     "RegistrationConfig",
     "RegistrationResult",
+    "RigConfig",
     "Skeleton",
     "StructureConfig",
     "StructureResult",

@@ -191,6 +191,8 @@ def _config_from_args(args: argparse.Namespace):
     if getattr(args, "max_joints", None) is not None:  # extract only; checked by the config
         cfg = dataclasses.replace(cfg, structure=dataclasses.replace(
             cfg.structure, max_joints=args.max_joints))
+    if getattr(args, "fps", None) is not None:  # extract only; checked by the config
+        cfg = dataclasses.replace(cfg, rig=dataclasses.replace(cfg.rig, fps=args.fps))
     if getattr(args, "rest_frame", None) is not None:  # extract only; checked by the config
         cfg = dataclasses.replace(cfg, registration=dataclasses.replace(
             cfg.registration, rest_frame=_rest_frame_arg(args.rest_frame)))
@@ -253,7 +255,8 @@ def cmd_extract(args: argparse.Namespace) -> int:
         seq = _read_configured(args, cfg)
         input_s = time.perf_counter() - t0
         res = extract(seq, cfg, od, resume=args.resume, stop_after=args.stop_after,
-                      pictures=not args.no_pictures, progress=_ProgressPrinter(args.quiet))
+                      pictures=not args.no_pictures, progress=_ProgressPrinter(args.quiet),
+                      bone_names=args.bone_names)
     if res.skeleton is None:
         print(f"registration written to {res.files.get('registration')}")
     else:
@@ -420,6 +423,11 @@ def build_parser() -> argparse.ArgumentParser:
                         "clearly better, e.g. legs that touch in the first one); overrides "
                         "[registration] rest_frame. A frame where no limb touches the body or "
                         "another limb (a T- or A-pose) gives the best skeleton")
+    p.add_argument("--fps", type=float, default=None,
+                   help="frame rate of the recording, Hz (default 30); the outputs play at "
+                        "fps / --stride; overrides [rig] fps")
+    p.add_argument("--bone-names", default=None, metavar="JSON",
+                   help="a JSON object {joint name: new name} renaming joints in every output")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=cmd_extract)
 

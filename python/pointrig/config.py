@@ -41,6 +41,7 @@ __all__ = [
     "PipelineConfig",
     "PreprocessConfig",
     "RegistrationConfig",
+    "RigConfig",
     "StructureConfig",
     "apply_overrides",
     "load_config",
@@ -635,6 +636,41 @@ class JointsConfig:
 
 
 @dataclass(frozen=True)
+class RigConfig:
+    """The animator's outputs: frame rate, joint names and the skinned surface ``rig.glb``
+    (:mod:`pointrig.rig`)."""
+
+    # frame rate of the recording, Hz; the outputs play at fps / [preprocess] frame_stride
+    fps: float = 30.0
+    # joint names: "tree" (root, spine_1, arm_l_1, ... by place in the tree) or "index" (j0..)
+    names: str = "tree"
+    # rig.glb: "auto" (when the rig extra is installed), "on" (an error without it) or "off"
+    mesh: str = "auto"
+    # rig.usda (UsdSkel) beside rig.glb: "auto" (when the usd extra is installed), "on", "off"
+    usd: str = "auto"
+    faces: int = 20000  # triangle budget of the surface after decimation
+    # voxel of the surface reconstruction, metres (0 = from the rest points' spacing)
+    voxel: float = 0.0
+    # frames whose points are moved back to the rest pose (inverse LBS) to fill the surface
+    fill_frames: int = 8
+
+    def __post_init__(self) -> None:
+        c = _Checks(self, "rig")
+        c.real("fps", "(0, 1000]")
+        c.choice("names", ("tree", "index"))
+        c.choice("mesh", ("auto", "on", "off"))
+        c.choice("usd", ("auto", "on", "off"))
+        c.int("faces", 100)
+        c.real("voxel", "[0, 0.2]")
+        c.int("fill_frames", 0)
+
+    @classmethod
+    def paper(cls, **overrides: Any) -> RigConfig:
+        """Joints named by index (``j0, j1, ...``), as the method numbers its bones."""
+        return cls(**{"names": "index", **overrides})
+
+
+@dataclass(frozen=True)
 class PipelineConfig:
     """All stages together."""
 
@@ -642,6 +678,7 @@ class PipelineConfig:
     registration: RegistrationConfig = field(default_factory=RegistrationConfig)
     structure: StructureConfig = field(default_factory=StructureConfig)
     joints: JointsConfig = field(default_factory=JointsConfig)
+    rig: RigConfig = field(default_factory=RigConfig)
 
     def to_dict(self) -> dict[str, dict[str, Any]]:
         """Every parameter, by stage, as plain JSON-able values."""
@@ -651,7 +688,7 @@ class PipelineConfig:
     def paper(cls) -> PipelineConfig:
         """The paper's own configuration, every stage's ``paper()``."""
         return cls(PreprocessConfig.paper(), RegistrationConfig.paper(),
-                   StructureConfig.paper(), JointsConfig.paper())
+                   StructureConfig.paper(), JointsConfig.paper(), RigConfig.paper())
 
 
 def _coerce(cls: type, stage: str, values: dict[str, Any]) -> Any:

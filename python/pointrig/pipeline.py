@@ -12,6 +12,9 @@ folder is checked and locked before step 1):
 - ``skeleton.bvh``   the animated skeleton as motion capture (Blender, MotionBuilder);
 - ``skeleton.glb``   glTF 2.0: joints, skin, the rest points as a skinned point mesh and the
   animation (Blender, Godot, Unity, three.js), see :func:`pointrig.export.write_gltf`;
+- ``rig.glb``        the skinned surface of the subject on the same joints (``[rig] mesh``,
+  the ``rig`` extra; :mod:`pointrig.rig`); ``rig.usda`` the same as UsdSkel (``[rig] usd``,
+  the ``usd`` extra; :mod:`pointrig.usd`);
 - ``skeleton.png``, ``skeleton.gif``  pictures (optional);
 - ``manifest.json``  the files of the set with their sizes and SHA-256, written last.
 
@@ -34,13 +37,16 @@ from typing import Any, Literal
 import numpy as np
 
 from .config import PipelineConfig
-from .errors import InputError, OutputError
+from .errors import InputError, OutputError, PointrigError
 from .export import write_bvh, write_gltf
 from .io.outdir import PARTIAL, OutputDir, fault_point
+from .naming import apply_names, read_name_mapping
 from .output import build_skeleton, output_skeleton
 from .preprocess import OUTLIER_SUSPECT, remove_sparse_frames
+from .rig import rig_available
 from .sequence import PointSequence, check_units
 from .skeleton import Skeleton
+from .usd import usd_available
 
 __all__ = ["ExtractResult", "build_skeleton", "expected_output_bytes", "extract",
            "output_skeleton"]
@@ -79,6 +85,8 @@ class ExtractResult:
     outliers: dict[str, Any] = field(default_factory=dict)
     #: what the run warned about, one line each (also in ``skeleton.json`` ``source.warnings``)
     warnings: list[str] = field(default_factory=list)
+    #: ``(mesh, stats)`` of ``rig.glb`` (:func:`pointrig.rig.build_surface`) when written
+    rig: tuple[Any, Any] | None = None
 
 
 def extract(
@@ -90,6 +98,7 @@ def extract(
     stop_after: StopAfter = "joints",
     pictures: bool = True,
     progress: Progress | None = None,
+    bone_names: str | Path | None = None,
 ) -> ExtractResult:
     """Run the pipeline on a sequence and (if ``out_dir``) write the outputs.
 
@@ -111,6 +120,9 @@ def extract(
         Also write ``skeleton.png`` and ``skeleton.gif``.
     progress
         Called as ``progress(step, done, total, detail)``.
+    bone_names
+        A JSON file ``{joint name: new name}`` renaming joints after ``[rig] names``
+        (:func:`pointrig.naming.apply_names`).
 
     Raises
     ------
@@ -123,7 +135,10 @@ def extract(
     """
     config = config or PipelineConfig()
     check_units(seq, config.preprocess.max_extent)
-    args = (resume, stop_after, pictures, progress)
+    mapping = None if bone_names is None else read_name_mapping(bone_names)
+    with_rig = out_dir is not None and stop_after == "joints" and rig_available(config.rig.mesh)
+    with_usd = with_rig and usd_available(config.rig.usd)
+    args = (resume, stop_after, pictures, progress, _Naming(mapping, bone_names), with_rig, with_usd)
     if out_dir is None:
         return _extract(seq, config, None, *args)
     if isinstance(out_dir, OutputDir):  # already checked and locked by the caller
@@ -133,12 +148,13 @@ def extract(
 
 
 def _extract_into(od: OutputDir, seq: PointSequence, config: PipelineConfig, resume: bool,
-                  stop_after: StopAfter, pictures: bool, progress: Progress | None
-                  ) -> ExtractResult:
+                  stop_after: StopAfter, pictures: bool, progress: Progress | None,
+                  naming: _Naming, with_rig: bool, with_usd: bool) -> ExtractResult:
     """:func:`extract` into the locked output folder ``od``: the free space checked first,
     the outputs staged, then committed as one set."""
     od.require_space(expected_output_bytes(seq, pictures, config.registration.n_rest_points))
-    result = _extract(seq, config, od, resume, stop_after, pictures, progress)
+    result = _extract(seq, config, od, resume, stop_after, pictures, progress, naming,
+                      with_rig, with_usd)
     fault_point("before-commit")
     try:
         final = od.commit()
@@ -172,8 +188,17 @@ def _writing(out: Path) -> Iterator[None]:
         raise OutputError(f"cannot write the outputs: {exc.strerror or exc}", out) from None
 
 
+@dataclass
+class _Naming:
+    """The ``--bone-names`` mapping and where it came from (for its errors)."""
+
+    mapping: dict[str, str] | None
+    source: str | Path | None
+
+
 def _extract(seq: PointSequence, config: PipelineConfig, od: OutputDir | None, resume: bool,
-             stop_after: StopAfter, pictures: bool, progress: Progress | None) -> ExtractResult:
+             stop_after: StopAfter, pictures: bool, progress: Progress | None, naming: _Naming,
+             with_rig: bool, with_usd: bool) -> ExtractResult:
     """The body of :func:`extract`; outputs go to ``od``'s staging folder (none without)."""
     out = None if od is None else od.stage
     timings: dict[str, float] = {}
@@ -203,9 +228,13 @@ def _extract(seq: PointSequence, config: PipelineConfig, od: OutputDir | None, r
         reg.rest_points, labels, st.bone_parent, joints_rest, R, T, weights, config,
         st.view_camera, observed=(seq.frames, final.points) if stop_after == "joints" else None,
         timings=timings)
+    result.skeleton.fps = config.rig.fps / config.preprocess.frame_stride
+    apply_names(result.skeleton, config.rig.names, naming.mapping,
+                naming.source or "--bone-names")
     if out is not None:
         with _writing(out):
-            _write_outputs(out, seq, reg, result, config, stop_after, n_input, pictures)
+            _write_outputs(out, seq, reg, result, config, stop_after, n_input, pictures,
+                           with_rig, with_usd)
     return result
 
 
@@ -386,11 +415,37 @@ def _step3_with_refinement(seq: PointSequence, reg: Any, st: Any, config: Pipeli
 
 def _write_outputs(out: Path, seq: PointSequence, reg: Any, result: ExtractResult,
                    config: PipelineConfig, stop_after: StopAfter, n_input: list[int],
-                   pictures: bool) -> None:
+                   pictures: bool, with_rig: bool = False, with_usd: bool = False) -> None:
     """Write ``result.skeleton`` into ``out``: ``skeleton.json`` (with the input's description
-    and every parameter), ``weights.npz``, ``skeleton.bvh``, ``skeleton.glb`` and, with
-    ``pictures``, ``skeleton.png`` and ``skeleton.gif``; the paths go to ``result.files``."""
+    and every parameter), ``weights.npz``, ``skeleton.bvh``, ``skeleton.glb``, with
+    ``with_rig`` the skinned surface ``rig.glb`` (and with ``with_usd`` ``rig.usda``; their
+    seconds in ``timings["rig"]``; a surface that cannot be built is skipped with a warning
+    under ``[rig] mesh = "auto"``) and, with ``pictures``, ``skeleton.png``, ``skeleton.gif``
+    (and ``rig.png``: the surface in three poses); the paths go to ``result.files``."""
     skel = result.skeleton
+    fps = skel.fps or 30.0
+    if with_rig:
+        from .rig import build_surface
+
+        t0 = time.perf_counter()
+        final = result.refined_registration or reg
+        rest_frame = int((reg.params or {}).get("rest_frame_index", -1))
+        try:
+            result.rig = build_surface(skel, config.rig, result.frames, final.points,
+                                       rest_frame)
+        except PointrigError as exc:
+            if config.rig.mesh == "on":
+                raise
+            log.warning("rig.glb not written: %s", exc)
+        if result.rig is not None:
+            write_gltf(out / "rig.glb", skel, fps=fps, mesh=result.rig[0])
+            result.files["rig"] = out / "rig.glb"
+            if with_usd:
+                from .usd import write_usd
+
+                write_usd(out / "rig.usda", skel, result.rig[0], fps=fps)
+                result.files["usd"] = out / "rig.usda"
+        result.timings["rig"] = time.perf_counter() - t0
     source = {"input": str(seq.source), "format": seq.fmt, "frames": len(seq),
               "points_per_frame": n_input,
               "points_used_per_frame": [int(c) for c in seq.counts],
@@ -401,8 +456,8 @@ def _write_outputs(out: Path, seq: PointSequence, reg: Any, result: ExtractResul
     params["timings_s"] = {k: round(v, 3) for k, v in result.timings.items()}
     skel.save_json(out / "skeleton.json", source=source, params=params)
     skel.save_weights(out / "weights.npz")
-    write_bvh(out / "skeleton.bvh", skel)
-    write_gltf(out / "skeleton.glb", skel)
+    write_bvh(out / "skeleton.bvh", skel, fps=fps)
+    write_gltf(out / "skeleton.glb", skel, fps=fps)
     result.files["skeleton"] = out / "skeleton.json"
     result.files["weights"] = out / "weights.npz"
     result.files["bvh"] = out / "skeleton.bvh"
@@ -411,6 +466,15 @@ def _write_outputs(out: Path, seq: PointSequence, reg: Any, result: ExtractResul
         _write_pictures(out, seq, result.refined_registration or reg, skel)
         result.files["png"] = out / "skeleton.png"
         result.files["gif"] = out / "skeleton.gif"
+        if result.rig is not None:
+            from .export import joint_transforms
+            from .viz import save_rig_png
+
+            mesh = result.rig[0]
+            R, T = joint_transforms(skel)
+            save_rig_png(out / "rig.png", mesh.vertices, mesh.faces, mesh.weights, R, T,
+                         skel.joint_positions, skel.parents)
+            result.files["rig_png"] = out / "rig.png"
 
 
 def _write_pictures(out: Path, seq: PointSequence, reg: Any, skel: Skeleton) -> None:

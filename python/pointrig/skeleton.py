@@ -51,6 +51,8 @@ class Skeleton:
         ``(M,)`` int, hard bone label of each rest point (step 2), or ``None``.
     bone_names
         ``B`` names (default ``b0, b1, ...``).
+    fps
+        Frame rate of ``joint_positions``, Hz, or ``None`` (unknown).
     """
 
     joint_names: list[str]
@@ -65,6 +67,7 @@ class Skeleton:
     rest_points: np.ndarray | None = None
     labels: np.ndarray | None = None
     bone_names: list[str] = field(default_factory=list)
+    fps: float | None = None
 
     def __post_init__(self) -> None:
         self.parents = np.asarray(self.parents, dtype=np.int64)
@@ -98,7 +101,7 @@ class Skeleton:
     def to_json_dict(self, source: dict[str, Any] | None = None,
                      params: dict[str, Any] | None = None) -> dict[str, Any]:
         """The ``pointrig.skeleton/1`` document."""
-        return {
+        doc: dict[str, Any] = {
             "format": SKELETON_FORMAT,
             "units": "m",
             "joints": [
@@ -113,6 +116,9 @@ class Skeleton:
             "source": source or {},
             "params": params or {},
         }
+        if self.fps is not None:
+            doc["fps"] = float(self.fps)
+        return doc
 
     def save_json(self, path: str | Path, source: dict[str, Any] | None = None,
                   params: dict[str, Any] | None = None) -> None:
@@ -160,6 +166,8 @@ def load_skeleton_json(path: str | Path) -> Skeleton:
         heads = np.array([int(b["head_joint"]) for b in bones], dtype=np.int64)
         tails = np.array([int(b["tail_joint"]) for b in bones], dtype=np.int64)
         bnames = [str(b.get("name", f"b{i}")) for i, b in enumerate(bones)]
-        return Skeleton(names, parents, rest, jp, heads, tails, bone_names=bnames)
+        fps = doc.get("fps")
+        return Skeleton(names, parents, rest, jp, heads, tails, bone_names=bnames,
+                        fps=None if fps is None else float(fps))
     except (KeyError, TypeError, ValueError) as exc:
         raise InputError(f"malformed skeleton document: {exc}", p) from None

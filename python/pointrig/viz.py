@@ -15,7 +15,7 @@ import numpy as np
 from .io.atomic import atomic_path
 
 __all__ = ["depth_colors", "render_preview", "preview_sequence", "palette", "render_frame",
-           "save_skeleton_png", "save_sequence_gif"]
+           "render_mesh", "save_rig_png", "save_skeleton_png", "save_sequence_gif"]
 
 # a compact "turbo"-like colour ramp: (position, r, g, b)
 _RAMP = np.array([
@@ -363,3 +363,98 @@ def preview_input(path: str | Path, out_png: str | Path, frame: int = 0, isolati
     with atomic_path(out) as tmp:
         im.save(tmp, format="PNG")
     return out
+
+
+def render_mesh(vertices: np.ndarray, faces: np.ndarray, face_colors: np.ndarray,
+                joints: np.ndarray | None, parents: np.ndarray | None, view: _View,
+                title: str = ""):
+    """Draw a triangle mesh seen from the camera to a Pillow image: faces far to near
+    (painter's order by mean depth), each shaded by how much it faces the camera (Lambert,
+    light at the camera), the skeleton on top.
+
+    Parameters
+    ----------
+    vertices
+        ``(V, 3)`` metres, camera frame (y down, z forward; orthographic along z).
+    faces
+        ``(K, 3)`` int, counter-clockwise seen from outside.
+    face_colors
+        ``(K, 3)`` uint8 base colours.
+    joints, parents
+        ``(J, 3)`` metres and ``(J,)`` parent indices, or ``None``.
+    """
+    from PIL import Image, ImageDraw
+
+    size = view.size
+    img = Image.new("RGB", (size, size), (24, 24, 28))
+    draw = ImageDraw.Draw(img)
+    tri = vertices[faces]  # (K, 3, 3)
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    # facing the camera: the outward normal points back along -z; back faces are hidden
+    lit = -n[:, 2]
+    front = lit > 0
+    order = np.flatnonzero(front)[np.argsort(-tri[front, :, 2].mean(axis=1), kind="stable")]
+    uv = view.project(tri.reshape(-1, 3)).reshape(-1, 3, 2)
+    shade = (0.25 + 0.75 * np.clip(lit, 0, 1))[:, None] * face_colors
+    cols = np.clip(shade, 0, 255).astype(np.uint8)
+    for k in order:
+        draw.polygon([tuple(p) for p in uv[k]], fill=tuple(int(c) for c in cols[k]))
+    if joints is not None and len(joints):
+        juv = view.project(joints)
+        if parents is not None:
+            for j, p in enumerate(parents):
+                if p >= 0:
+                    draw.line([tuple(juv[p]), tuple(juv[j])], fill=(255, 255, 255), width=2)
+        for u, v in juv:
+            draw.ellipse([u - 3, v - 3, u + 3, v + 3], fill=(255, 230, 40), outline=(0, 0, 0))
+    if title:
+        draw.text((6, 4), title, fill=(230, 230, 230))
+    return img
+
+
+def _distinct_poses(joints: np.ndarray, n: int = 3) -> list[int]:
+    """``n`` frames of ``joints (F, J, 3)`` whose poses differ most: frame 0, then each time
+    the frame farthest (mean joint distance, root placed at the origin) from those chosen."""
+    rel = joints - joints[:, :1]
+    chosen = [0]
+    while len(chosen) < min(n, len(joints)):
+        d = np.min([np.linalg.norm(rel - rel[c], axis=2).mean(axis=1) for c in chosen], axis=0)
+        chosen.append(int(np.argmax(d)))
+    return sorted(set(chosen))
+
+
+def save_rig_png(path: str | Path, vertices: np.ndarray, faces: np.ndarray,
+                 weights: np.ndarray, R: np.ndarray, T: np.ndarray, joints: np.ndarray,
+                 parents: np.ndarray, size: int = 360) -> None:
+    """Write ``rig.png``: the skinned surface posed in three frames of the sequence (the
+    most different poses), coloured by each face's main bone, with the skeleton.
+
+    Parameters
+    ----------
+    vertices, faces
+        ``(V, 3)`` rest-pose vertices (metres, camera frame) and ``(K, 3)`` faces.
+    weights
+        ``(V, J)`` skinning weights.
+    R, T
+        ``(F, J, 3, 3)``, ``(F, J, 3)`` the joint frames' ``T_frame_rest``
+        (:func:`pointrig.export.joint_transforms`).
+    joints
+        ``(F, J, 3)`` joint positions, metres; ``parents (J,)``.
+    """
+    from PIL import Image
+
+    from .kinematics import skin
+
+    which = _distinct_poses(np.asarray(joints))
+    posed = skin(vertices, weights, R[which], T[which])  # (3, V, 3)
+    view = _View(np.concatenate(list(posed)), size)
+    main = np.argmax(weights[faces].sum(axis=1), axis=1)
+    base = palette(max(weights.shape[1], 1))[main].astype(float)
+    panels = [render_mesh(posed[i], faces, base, joints[t], parents, view, f"frame {t}")
+              for i, t in enumerate(which)]
+    sheet = Image.new("RGB", (size * len(panels), size))
+    for i, p in enumerate(panels):
+        sheet.paste(p, (i * size, 0))
+    with atomic_path(path) as tmp:
+        sheet.save(tmp, format="PNG")
