@@ -18,7 +18,7 @@ test-python:
 	.venv/bin/python -m pytest -q
 
 bench: setup
-	.venv/bin/python benchmarks/run_all.py
+	.venv/bin/python -m benchmarks.run_all
 
 lint:
 	bash scripts/setup.sh --python-only
