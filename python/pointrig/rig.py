@@ -22,6 +22,7 @@ Needs the ``rig`` extra (``pip install 'pointrig[rig]'``: scikit-image, fast-sim
 
 from __future__ import annotations
 
+import importlib
 import logging
 from dataclasses import dataclass
 
@@ -48,15 +49,25 @@ def rig_available(mode: str) -> bool:
     PointrigError
         With ``mode == "on"`` and scikit-image or fast-simplification missing.
     """
+    return extra_available(mode, ("fast_simplification", "skimage.measure"), _EXTRA,
+                           "rig.glb not written")
+
+
+def extra_available(mode: str, modules: tuple[str, ...], message: str,
+                    skipped: str | None = None) -> bool:
+    """Whether the optional ``modules`` import: ``mode`` ``"off"`` answers ``False``, ``"on"``
+    makes their absence a :class:`PointrigError` with ``message``, ``"auto"`` answers
+    ``False`` (logging ``message`` and ``skipped`` when given)."""
     if mode == "off":
         return False
     try:
-        import fast_simplification  # noqa: F401
-        import skimage.measure  # noqa: F401
+        for name in modules:
+            importlib.import_module(name)
     except ImportError:
         if mode == "on":
-            raise PointrigError(_EXTRA) from None
-        log.info("%s (rig.glb not written)", _EXTRA)
+            raise PointrigError(message) from None
+        if skipped:
+            log.info("%s (%s)", message, skipped)
         return False
     return True
 

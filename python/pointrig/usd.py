@@ -41,15 +41,9 @@ def usd_available(mode: str) -> bool:
     PointrigError
         With ``mode == "on"`` and usd-core missing.
     """
-    if mode == "off":
-        return False
-    try:
-        import pxr.UsdSkel  # noqa: F401
-    except ImportError:
-        if mode == "on":
-            raise PointrigError(_EXTRA) from None
-        return False
-    return True
+    from .rig import extra_available
+
+    return extra_available(mode, ("pxr.UsdSkel",), _EXTRA)
 
 
 def _joint_paths(names: list[str], parents: np.ndarray) -> list[str]:
