@@ -9,6 +9,11 @@
 #   the real client the Blender import tests drive: about 1 GB on disk, 40 s to install from
 #   the package index (once; then only when constraints-blender.txt changes).
 #
+#   Headless Chromium from Debian's packages (chromium-headless-shell, when neither it nor
+#   chromium is on PATH): the real browser tests/test_report.py opens report.html in, driven by
+#   playwright (whose own browser download is not used). About 290 MB on disk, 30 s with
+#   apt-get (once); needs root (or sudo) and apt-get.
+#
 #   bash scripts/setup.sh                 # everything
 #   bash scripts/setup.sh --python-only   # the venvs and their packages, no Rust build
 #
@@ -58,6 +63,26 @@ if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
     -r .venv/.pointrig-requirements.txt
   rm -f .venv/.pointrig-installed  # the package's own install follows the new list
   echo "$want" > "$stamp"
+fi
+
+# Headless Chromium for the report's browser test; a failed install does not stop the set-up:
+# tests/test_report.py fails with its reason
+if ! command -v chromium-headless-shell >/dev/null 2>&1 && ! command -v chromium >/dev/null 2>&1
+then
+  sudo=""
+  [ "$(id -u)" = 0 ] || { command -v sudo >/dev/null 2>&1 && sudo -n true 2>/dev/null && sudo=sudo; }
+  if command -v apt-get >/dev/null 2>&1 && { [ "$(id -u)" = 0 ] || [ -n "$sudo" ]; }; then
+    echo "setup: installing headless Chromium (Debian's chromium-headless-shell, about 290 MB)"
+    apt_install() {
+      $sudo env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends \
+        chromium-headless-shell >/dev/null
+    }
+    apt_install || { $sudo apt-get update -qq && apt_install; } \
+      || echo "setup: could not install chromium-headless-shell; the report's browser test will fail" >&2
+  else
+    echo "setup: install chromium-headless-shell or chromium (root and apt-get are needed here);" \
+      "the report's browser test fails until then" >&2
+  fi
 fi
 
 # Blender as a Python module, in a venv of its own (it pins its own numpy)

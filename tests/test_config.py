@@ -34,6 +34,8 @@ BAD = [
     (RigConfig, "faces", 10),
     (RigConfig, "voxel", -0.01),
     (RigConfig, "fill_frames", -1),
+    (RigConfig, "report", "html"),
+    (RigConfig, "report_points", 0),
     (PreprocessConfig, "crop_min", (0.0, 1.0)),
     (PreprocessConfig, "crop_min", (0.0, float("nan"), 1.0)),
     (PreprocessConfig, "crop_max", (0.0, 0.0, "1")),

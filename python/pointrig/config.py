@@ -637,8 +637,9 @@ class JointsConfig:
 
 @dataclass(frozen=True)
 class RigConfig:
-    """The animator's outputs: frame rate, joint names and the skinned surface ``rig.glb``
-    (:mod:`pointrig.rig`)."""
+    """The animator's outputs: frame rate, joint names, the skinned surface ``rig.glb``
+    (:mod:`pointrig.rig`) and the page to look at the run, ``report.html``
+    (:mod:`pointrig.report`)."""
 
     # frame rate of the recording, Hz; the outputs play at fps / [preprocess] frame_stride
     fps: float = 30.0
@@ -653,6 +654,10 @@ class RigConfig:
     voxel: float = 0.0
     # frames whose points are moved back to the rest pose (inverse LBS) to fill the surface
     fill_frames: int = 8
+    # report.html: "auto" (when the report extra, plotly, is installed), "on" or "off"
+    report: str = "auto"
+    # points of each frame shown in report.html (an even subsample)
+    report_points: int = 2000
 
     def __post_init__(self) -> None:
         c = _Checks(self, "rig")
@@ -663,6 +668,8 @@ class RigConfig:
         c.int("faces", 100)
         c.real("voxel", "[0, 0.2]")
         c.int("fill_frames", 0)
+        c.choice("report", ("auto", "on", "off"))
+        c.int("report_points", 1)
 
     @classmethod
     def paper(cls, **overrides: Any) -> RigConfig:

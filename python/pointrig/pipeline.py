@@ -16,6 +16,9 @@ folder is checked and locked before step 1):
   the ``rig`` extra; :mod:`pointrig.rig`); ``rig.usda`` the same as UsdSkel (``[rig] usd``,
   the ``usd`` extra; :mod:`pointrig.usd`);
 - ``skeleton.png``, ``skeleton.gif``  pictures (optional);
+- ``report.html``    the page to look at the run: a 3D view of the points and the skeleton
+  that plays the sequence, the seconds of each stage and the warnings (``[rig] report``, the
+  ``report`` extra; :mod:`pointrig.report`);
 - ``manifest.json``  the files of the set with their sizes and SHA-256, written last.
 
 The output stage that turns step 3's bones into the written skeleton (joint selection,
@@ -43,6 +46,7 @@ from .io.outdir import PARTIAL, OutputDir, fault_point
 from .naming import apply_names, read_name_mapping
 from .output import build_skeleton, output_skeleton
 from .preprocess import OUTLIER_SUSPECT, remove_sparse_frames
+from .report import report_available
 from .rig import rig_available
 from .sequence import PointSequence, check_units
 from .skeleton import Skeleton
@@ -138,7 +142,10 @@ def extract(
     mapping = None if bone_names is None else read_name_mapping(bone_names)
     with_rig = out_dir is not None and stop_after == "joints" and rig_available(config.rig.mesh)
     with_usd = with_rig and usd_available(config.rig.usd)
-    args = (resume, stop_after, pictures, progress, _Naming(mapping, bone_names), with_rig, with_usd)
+    with_report = out_dir is not None and stop_after != "registration" \
+        and report_available(config.rig.report)
+    args = (resume, stop_after, pictures, progress, _Naming(mapping, bone_names), with_rig,
+            with_usd, with_report)
     if out_dir is None:
         return _extract(seq, config, None, *args)
     if isinstance(out_dir, OutputDir):  # already checked and locked by the caller
@@ -149,12 +156,13 @@ def extract(
 
 def _extract_into(od: OutputDir, seq: PointSequence, config: PipelineConfig, resume: bool,
                   stop_after: StopAfter, pictures: bool, progress: Progress | None,
-                  naming: _Naming, with_rig: bool, with_usd: bool) -> ExtractResult:
+                  naming: _Naming, with_rig: bool, with_usd: bool,
+                  with_report: bool) -> ExtractResult:
     """:func:`extract` into the locked output folder ``od``: the free space checked first,
     the outputs staged, then committed as one set."""
     od.require_space(expected_output_bytes(seq, pictures, config.registration.n_rest_points))
     result = _extract(seq, config, od, resume, stop_after, pictures, progress, naming,
-                      with_rig, with_usd)
+                      with_rig, with_usd, with_report)
     fault_point("before-commit")
     try:
         final = od.commit()
@@ -198,7 +206,7 @@ class _Naming:
 
 def _extract(seq: PointSequence, config: PipelineConfig, od: OutputDir | None, resume: bool,
              stop_after: StopAfter, pictures: bool, progress: Progress | None, naming: _Naming,
-             with_rig: bool, with_usd: bool) -> ExtractResult:
+             with_rig: bool, with_usd: bool, with_report: bool = False) -> ExtractResult:
     """The body of :func:`extract`; outputs go to ``od``'s staging folder (none without)."""
     out = None if od is None else od.stage
     timings: dict[str, float] = {}
@@ -234,7 +242,7 @@ def _extract(seq: PointSequence, config: PipelineConfig, od: OutputDir | None, r
     if out is not None:
         with _writing(out):
             _write_outputs(out, seq, reg, result, config, stop_after, n_input, pictures,
-                           with_rig, with_usd)
+                           with_rig, with_usd, with_report)
     return result
 
 
@@ -415,13 +423,15 @@ def _step3_with_refinement(seq: PointSequence, reg: Any, st: Any, config: Pipeli
 
 def _write_outputs(out: Path, seq: PointSequence, reg: Any, result: ExtractResult,
                    config: PipelineConfig, stop_after: StopAfter, n_input: list[int],
-                   pictures: bool, with_rig: bool = False, with_usd: bool = False) -> None:
+                   pictures: bool, with_rig: bool = False, with_usd: bool = False,
+                   with_report: bool = False) -> None:
     """Write ``result.skeleton`` into ``out``: ``skeleton.json`` (with the input's description
     and every parameter), ``weights.npz``, ``skeleton.bvh``, ``skeleton.glb``, with
     ``with_rig`` the skinned surface ``rig.glb`` (and with ``with_usd`` ``rig.usda``; their
     seconds in ``timings["rig"]``; a surface that cannot be built is skipped with a warning
     under ``[rig] mesh = "auto"``) and, with ``pictures``, ``skeleton.png``, ``skeleton.gif``
-    (and ``rig.png``: the surface in three poses); the paths go to ``result.files``."""
+    (and ``rig.png``: the surface in three poses) and, with ``with_report``, ``report.html``
+    (:func:`pointrig.report.write_report`); the paths go to ``result.files``."""
     skel = result.skeleton
     fps = skel.fps or 30.0
     if with_rig:
@@ -475,6 +485,19 @@ def _write_outputs(out: Path, seq: PointSequence, reg: Any, result: ExtractResul
             save_rig_png(out / "rig.png", mesh.vertices, mesh.faces, mesh.weights, R, T,
                          skel.joint_positions, skel.parents)
             result.files["rig_png"] = out / "rig.png"
+    if with_report:
+        from .report import write_report
+
+        write_report(out / "report.html", skel, result.frames or list(seq.frames),
+                     params["timings_s"], result.warnings,
+                     title=_title(seq), max_points=config.rig.report_points)
+        result.files["report"] = out / "report.html"
+
+
+def _title(seq: PointSequence) -> str:
+    """The input's name for the report: its last two path parts (``take_3/frames``)."""
+    parts = Path(str(seq.source)).parts[-2:]
+    return "/".join(parts) or "pointrig"
 
 
 def _write_pictures(out: Path, seq: PointSequence, reg: Any, skel: Skeleton) -> None:
