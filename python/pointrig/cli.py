@@ -1,6 +1,7 @@
 """The ``pointrig`` command line. The only module that prints or exits.
 
-Subcommands: ``extract``, ``demo``, ``synth``, ``evaluate``, ``info``. Heavy imports (scipy,
+Subcommands: ``extract``, ``batch``, ``demo``, ``synth``, ``evaluate``, ``info``,
+``preview``. Heavy imports (scipy,
 the pipeline) happen inside the subcommands so that ``pointrig --help`` and ``pointrig info``
 start fast.
 """
@@ -193,6 +194,8 @@ def _config_from_args(args: argparse.Namespace):
             cfg.structure, max_joints=args.max_joints))
     if getattr(args, "fps", None) is not None:  # extract only; checked by the config
         cfg = dataclasses.replace(cfg, rig=dataclasses.replace(cfg.rig, fps=args.fps))
+    if getattr(args, "report", None) is not None:  # extract and batch; checked by the config
+        cfg = dataclasses.replace(cfg, rig=dataclasses.replace(cfg.rig, report=args.report))
     if getattr(args, "rest_frame", None) is not None:  # extract only; checked by the config
         cfg = dataclasses.replace(cfg, registration=dataclasses.replace(
             cfg.registration, rest_frame=_rest_frame_arg(args.rest_frame)))
@@ -209,26 +212,12 @@ def _rest_frame_arg(text: str) -> int | str:
 
 
 def _read_configured(args: argparse.Namespace, cfg):
-    from .background import remove_background
-    from .io import read_sequence
+    from .batch import read_recording
 
-    pre = cfg.preprocess  # its choices were checked when the config was made
-    seq = read_sequence(
-        args.input, start=pre.frame_start, stop=pre.frame_stop, stride=pre.frame_stride,
-        crop_min=pre.crop_min, crop_max=pre.crop_max, voxel_size=pre.voxel_size,
-        intrinsics=args.intrinsics, scale=args.scale, min_points=pre.min_points,
-        topic=args.topic, isolation=_isolation(args),
-        skip_bad_frames=args.skip_bad_frames,
-    )
-    # before the background search, whose thresholds are metres too (extract checks the
-    # sequence it is given again: the Python API reaches it without this function)
-    check_units(seq, pre.max_extent)
-    if pre.background == "auto":
-        seq, report = remove_background(seq, seed=cfg.registration.seed,
-                                        threshold=pre.background_threshold)
-        if report.planes:
-            print(f"[background] {report.summary()}", file=sys.stderr)
-    return seq
+    return read_recording(
+        args.input, cfg, scale=args.scale, intrinsics=args.intrinsics, topic=args.topic,
+        isolation=_isolation(args), skip_bad_frames=args.skip_bad_frames,
+        background_note=lambda line: print(f"[background] {line}", file=sys.stderr))
 
 
 def _summary_line(res, out, input_s: float | None = None) -> str:
@@ -261,6 +250,39 @@ def cmd_extract(args: argparse.Namespace) -> int:
         print(f"registration written to {res.files.get('registration')}")
     else:
         print(_summary_line(res, args.output, input_s))
+    return 0
+
+
+def cmd_batch(args: argparse.Namespace) -> int:
+    """Run extract on many recordings; the summary table; exit code 1 if any failed."""
+    from .batch import BatchOptions, format_table, run_batch
+
+    if args.scheduler and args.jobs != 1:
+        raise ConfigError("--jobs and --scheduler exclude each other (the cluster's workers "
+                          "set how many recordings run at once)")
+    opts = BatchOptions(config=_config_from_args(args), pictures=not args.no_pictures,
+                        resume=args.resume, scale=args.scale, intrinsics=args.intrinsics,
+                        topic=args.topic)
+    n = len(args.inputs)
+    count = [0]
+
+    def done(row) -> None:
+        count[0] += 1
+        if args.quiet:
+            return
+        what = (f"FAILED: {row.failure}" if row.failure else
+                f"{row.joints} joints, {row.frames} frames in {row.time_s:.1f}s")
+        print(f"[batch] {count[0]}/{n} {row.recording}: {what}", file=sys.stderr, flush=True)
+
+    res = run_batch(args.inputs, args.output, opts, jobs=args.jobs, threads=args.threads,
+                    scheduler=args.scheduler, done=done)
+    print(format_table(res.rows))
+    print(f"summary {res.summary}, index {res.index}")
+    if res.failed:
+        names = ", ".join(r.recording for r in res.failed)
+        print(f"pointrig batch: {len(res.failed)} of {n} recordings failed ({names}); the "
+              f"others are done, see {res.summary}", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -428,8 +450,45 @@ def build_parser() -> argparse.ArgumentParser:
                         "fps / --stride; overrides [rig] fps")
     p.add_argument("--bone-names", default=None, metavar="JSON",
                    help="a JSON object {joint name: new name} renaming joints in every output")
+    p.add_argument("--report", choices=("auto", "on", "off"), default=None,
+                   help="report.html, a page with a 3D view of the run (auto: when the report "
+                   "extra, plotly, is installed); overrides [rig] report")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=cmd_extract)
+
+    p = sub.add_parser(
+        "batch", help="extract skeletons from many recordings: OUT/<name>/ each, a summary",
+        description="Run extract on every INPUT into OUT/<name>/ (name: the file or folder name "
+        "without its suffix), then write OUT/summary.csv and OUT/index.html (the table, each "
+        "recording linked to its report.html) and print the table. A recording that fails is "
+        "recorded with its error and the others go on; the exit code is 1 if any failed. "
+        "See docs/batch.md.")
+    p.add_argument("inputs", nargs="+", metavar="INPUT",
+                   help="recordings, as for extract (docs/inputs.md)")
+    p.add_argument("-o", "--output", required=True, help="output folder of the batch")
+    p.add_argument("--config", default=None, help="TOML file overriding any parameter")
+    p.add_argument("-j", "--jobs", type=int, default=1, metavar="N",
+                   help="recordings at once on this machine, each in its own process with "
+                   "its threads capped so that N x threads = cores (default 1)")
+    p.add_argument("--threads", type=int, default=None, metavar="T",
+                   help="threads per recording (default: cores / N; 1 with --scheduler)")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="run the recordings on an existing Dask distributed cluster, e.g. "
+                   "tcp://10.0.0.5:8786 (the batch extra; inputs and OUT on a shared file "
+                   "system)")
+    p.add_argument("--resume", action=argparse.BooleanOptionalAction, default=True,
+                   help="reuse OUT/<name>/registration.npz when input and step-1 parameters "
+                   "match")
+    p.add_argument("--no-pictures", action="store_true", help="skip skeleton.png/.gif")
+    p.add_argument("--report", choices=("auto", "on", "off"), default=None,
+                   help="report.html per recording (as for extract); overrides [rig] report")
+    p.add_argument("--scale", type=float, default=1.0,
+                   help="multiply coordinates to get metres (0.001 for millimetres)")
+    p.add_argument("--intrinsics", default=None, help="as for extract")
+    p.add_argument("--topic", default=None, help="ROS bags: the topic to read")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    p.set_defaults(func=cmd_batch, crop_min=None, crop_max=None, voxel=0.0, start=0, stop=None,
+                   stride=1)
 
     p = sub.add_parser("demo", help="run the pipeline on the bundled demo sequence")
     p.add_argument("-o", "--output", default="pointrig-demo",
