@@ -183,6 +183,7 @@ def test_scheduler_without_the_batch_extra_is_one_line(inputs, tmp_path, monkeyp
     code, stdout, stderr = _run(_argv(inputs, tmp_path / "y", "--scheduler",
                                       "tcp://127.0.0.1:1"))
     assert code == 1 and stdout == ""
+    assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
     assert stderr.strip().splitlines() == [
         "pointrig batch: error: pointrig batch --scheduler needs the batch extra (dask "
         "distributed): pip install 'pointrig[batch]'"]
@@ -196,3 +197,20 @@ def test_batch_help_describes_usage():
     for words in ("INPUT [INPUT ...]", "-o OUTPUT", "--jobs N", "--scheduler ADDRESS",
                   "summary.csv", "index.html", "exit code is 1"):
         assert words in text, words
+
+
+def test_a_worker_process_that_dies_is_a_failed_row(inputs, tmp_path, monkeypatch):
+    """A recording whose process is killed (SIGKILL after step 1, as the fault tests stop a
+    run) is recorded as failed; the batch still finishes and writes its summary."""
+    from pointrig.io.outdir import FAULT_ENV
+
+    monkeypatch.setenv(FAULT_ENV, "registered")
+    out = tmp_path / "killed"
+    a, _ = inputs["good"]
+    code, _, stderr = _run(["batch", str(a), str(inputs["bad"]), "-o", str(out), "--config",
+                            str(inputs["config"]), "--no-pictures", "-q", "--jobs", "2"])
+    assert code == 1, stderr
+    rows = _summary(out)
+    assert rows["take_a"]["failure"].startswith("the worker process ended with signal 9")
+    assert rows["broken"]["failure"] and "signal" not in rows["broken"]["failure"]
+    assert not (out / "take_a" / MANIFEST).exists()

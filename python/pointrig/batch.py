@@ -39,6 +39,7 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from .config import PipelineConfig
 from .errors import ConfigError, PointrigError
@@ -249,33 +250,43 @@ def _worker_main() -> int:
     return 0
 
 
-def _run_dask(jobs: list[Job], scheduler: str,
-              done: Callable[[BatchRow], None]) -> dict[str, BatchRow]:
-    """Run the jobs on the Dask cluster at ``scheduler``, one task each."""
+def _dask() -> tuple[Any, Any]:
+    """distributed's ``Client`` and ``as_completed`` (:class:`PointrigError` without the
+    ``batch`` extra)."""
     try:
         from distributed import Client
         from distributed import as_completed as dask_completed
     except ImportError:
         raise PointrigError(_DASK_EXTRA) from None
+    return Client, dask_completed
+
+
+def _connect(scheduler: str) -> Any:
+    """A Dask client of the cluster at ``scheduler`` (:class:`PointrigError` without the
+    ``batch`` extra or when the scheduler does not answer within 20 s)."""
+    Client, _ = _dask()
     try:
-        client = Client(scheduler, timeout="20s")
+        return Client(scheduler, timeout="20s")
     except (OSError, TimeoutError, ValueError) as exc:
         raise PointrigError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
+
+
+def _run_dask(client: Any, jobs: list[Job], done: Callable[[BatchRow], None]
+              ) -> dict[str, BatchRow]:
+    """Run the jobs on the Dask cluster of ``client``, one task each."""
+    _, dask_completed = _dask()
     rows: dict[str, BatchRow] = {}
     tag = uuid.uuid4().hex[:8]
-    try:
-        futures = {client.submit(run_job, job, key=f"pointrig-{job.name}-{tag}", pure=False):
-                   job for job in jobs}
-        for fut in dask_completed(futures):
-            job = futures[fut]
-            try:
-                row = fut.result()
-            except Exception as exc:  # noqa: BLE001 - a lost worker fails this job only
-                row = _failed(job, f"the Dask task failed: {type(exc).__name__}: {exc}")
-            rows[job.name] = row
-            done(row)
-    finally:
-        client.close()
+    futures = {client.submit(run_job, job, key=f"pointrig-{job.name}-{tag}", pure=False): job
+               for job in jobs}
+    for fut in dask_completed(futures):
+        job = futures[fut]
+        try:
+            row = fut.result()
+        except Exception as exc:  # noqa: BLE001 - a lost worker fails this job only
+            row = _failed(job, f"the Dask task failed: {type(exc).__name__}: {exc}")
+        rows[job.name] = row
+        done(row)
     return rows
 
 
@@ -318,12 +329,26 @@ def run_batch(inputs: Sequence[str | Path], out: str | Path,
         raise ConfigError(f"--jobs must be at least 1, got {jobs}")
     if threads is None:
         threads = 1 if scheduler else max(1, (os.cpu_count() or 1) // jobs)
-    root = check_output_dir(out)
-    plan = plan_jobs(inputs, root, options, threads if (scheduler or jobs > 1) else 0)
-    notify = done or (lambda row: None)
+    client = _connect(scheduler) if scheduler else None  # before anything is made
+    try:
+        root = check_output_dir(out)
+        plan = plan_jobs(inputs, root, options, threads if (scheduler or jobs > 1) else 0)
+        rows = _run_all(plan, jobs, client, done or (lambda row: None))
+    finally:
+        if client is not None:
+            client.close()
+    ordered = [rows[job.name] for job in plan]
+    summary = write_summary_csv(root / "summary.csv", ordered)
+    index = write_index_html(root / "index.html", ordered)
+    return BatchResult(ordered, summary, index)
+
+
+def _run_all(plan: list[Job], jobs: int, client: Any, notify: Callable[[BatchRow], None]
+             ) -> dict[str, BatchRow]:
+    """Run the jobs: on the Dask cluster of ``client``, else ``jobs`` at once here."""
     rows: dict[str, BatchRow] = {}
-    if scheduler:
-        rows = _run_dask(plan, scheduler, notify)
+    if client is not None:
+        rows = _run_dask(client, plan, notify)
     elif jobs == 1:
         for job in plan:
             rows[job.name] = run_job(job)
@@ -335,10 +360,7 @@ def run_batch(inputs: Sequence[str | Path], out: str | Path,
                 row = fut.result()
                 rows[futures[fut].name] = row
                 notify(row)
-    ordered = [rows[job.name] for job in plan]
-    summary = write_summary_csv(root / "summary.csv", ordered)
-    index = write_index_html(root / "index.html", ordered)
-    return BatchResult(ordered, summary, index)
+    return rows
 
 
 def write_summary_csv(path: Path, rows: Sequence[BatchRow]) -> Path:
