@@ -8,7 +8,8 @@ of each stage (``skeleton.json`` ``params.timings_s``) and the run's warnings
 deterministic subsample) so that the file stays a few MB.
 
 Coordinates are the camera's (metres, x right, y down, z forward); the view starts from behind
-the camera with y down, as the camera saw the subject.
+the camera with y down, as the camera saw the subject. The axes span every point shown and every joint of the sequence,
+fixed while it plays.
 
 :func:`write_index` writes ``index.html`` of ``pointrig batch``: the summary table with a link
 to each recording's report.
@@ -39,6 +40,7 @@ _STYLE = """
 body { font-family: system-ui, sans-serif; margin: 1.5em; color: #222; }
 table { border-collapse: collapse; margin: 0.5em 0 1.5em; }
 th, td { border: 1px solid #ccc; padding: 0.25em 0.7em; text-align: left; }
+th { white-space: nowrap; }
 td.num { text-align: right; font-variant-numeric: tabular-nums; }
 .warn { color: #9a4b00; }
 .fail { color: #b00020; }
@@ -96,8 +98,11 @@ def _figure(skel: Skeleton, frames: Sequence[np.ndarray], max_points: int) -> An
     joints = np.asarray(skel.joint_positions, dtype=np.float32)
     F = min(len(frames), len(joints))
     pts = [subsample_points(frames[t], max_points) for t in range(F)]
+    # the axes: every point shown and every joint, over the whole sequence
     allp = np.concatenate(pts + [joints[:F].reshape(-1, 3)])
     allp = allp[np.isfinite(allp).all(axis=1)]
+    if not len(allp):
+        allp = np.array([[-1.0] * 3, [1.0] * 3], dtype=np.float32)
     lo, hi = allp.min(axis=0), allp.max(axis=0)
     pad = 0.05 * float(np.max(hi - lo)) + 1e-3
     names = list(skel.joint_names)
@@ -125,7 +130,7 @@ def _figure(skel: Skeleton, frames: Sequence[np.ndarray], max_points: int) -> An
                           {"label": "Pause", "method": "animate",
                            "args": [[None], {"frame": {"duration": 0, "redraw": False},
                                              "mode": "immediate"}]}]}],
-        sliders=[{"active": 0, "x": 0.12, "len": 0.88, "y": 0.0, "pad": {"t": 30},
+        sliders=[{"active": 0, "x": 0.16, "len": 0.84, "y": 0.0, "pad": {"t": 30},
                   "currentvalue": {"prefix": "frame "},
                   "steps": [{"label": str(t), "method": "animate",
                              "args": [[str(t)], {"frame": {"duration": 0, "redraw": True},
