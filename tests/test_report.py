@@ -21,7 +21,9 @@ import pytest
 from PIL import Image
 
 from pointrig import PointrigError
+from pointrig.cli import main
 from pointrig.config import PipelineConfig, RigConfig, apply_overrides
+from pointrig.io import write_sequence
 from pointrig.io.outdir import read_manifest
 from pointrig.pipeline import extract
 from pointrig.report import PLOT_ID, subsample_points
@@ -50,9 +52,16 @@ def seq():
 
 @pytest.fixture(scope="module")
 def run(seq, tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("report") / "out"
-    res = extract(seq, _config(report="on", report_points=500), out, pictures=False)
-    assert "report" in res.files
+    """``pointrig extract --report on`` with 500 points a frame (the config file's)."""
+    root = tmp_path_factory.mktemp("report")
+    write_sequence(root / "take_a", seq.frames)
+    cfg = root / "fast.toml"
+    cfg.write_text("[registration]\nn_rest_points = 600\nrest_frame = 0\nrefine_rounds = 0\n"
+                   "[structure]\nensemble_seeds = 1\n"
+                   '[rig]\nmesh = "off"\nusd = "off"\nreport = "off"\nreport_points = 500\n')
+    out = root / "out"
+    assert main(["extract", str(root / "take_a"), "-o", str(out), "--config", str(cfg),
+                 "--report", "on", "--no-pictures", "-q"]) == 0
     return out
 
 
@@ -72,6 +81,7 @@ def _browser() -> str:
 def test_report_is_part_of_the_output_set(run):
     doc = json.loads((run / "skeleton.json").read_text())
     page = (run / "report.html").read_text()
+    assert doc["params"]["rig"]["report"] == "on"  # --report over the config file's "off"
     assert "report.html" in read_manifest(run)
     assert not (run / ".pointrig-partial").exists()
     # self-contained: plotly's JavaScript inline, no script or style fetched from elsewhere

@@ -160,7 +160,8 @@ def _extract_into(od: OutputDir, seq: PointSequence, config: PipelineConfig, res
                   with_report: bool) -> ExtractResult:
     """:func:`extract` into the locked output folder ``od``: the free space checked first,
     the outputs staged, then committed as one set."""
-    od.require_space(expected_output_bytes(seq, pictures, config.registration.n_rest_points))
+    od.require_space(expected_output_bytes(seq, pictures, config.registration.n_rest_points,
+                                           report=with_report))
     result = _extract(seq, config, od, resume, stop_after, pictures, progress, naming,
                       with_rig, with_usd, with_report)
     fault_point("before-commit")
@@ -174,15 +175,17 @@ def _extract_into(od: OutputDir, seq: PointSequence, config: PipelineConfig, res
 
 
 def expected_output_bytes(seq: PointSequence, pictures: bool = True,
-                          n_rest_points: int | None = None) -> int:
+                          n_rest_points: int | None = None, report: bool = False) -> int:
     """A generous estimate of the bytes :func:`extract` writes for ``seq``: the registration
     checkpoint, the weights and the glTF hold a few float64 3-vectors per rest point and frame
-    (``n_rest_points``, at most a frame's size), plus the pictures (their GIF a frame each)."""
+    (``n_rest_points``, at most a frame's size), plus the pictures (their GIF a frame each) and
+    ``report.html`` (plotly's JavaScript, about 5 MB, and up to 2000 points a frame)."""
     n = int(np.max(seq.counts)) if len(seq) else 0
     if n_rest_points is not None:
         n = min(n, n_rest_points)
     f = len(seq)
-    return 48 * f * n + 64 * n + ((8 << 20) + (64 << 10) * f if pictures else 0) + (1 << 20)
+    return (48 * f * n + 64 * n + ((8 << 20) + (64 << 10) * f if pictures else 0)
+            + ((6 << 20) + (64 << 10) * f if report else 0) + (1 << 20))
 
 
 @contextmanager
