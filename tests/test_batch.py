@@ -214,3 +214,16 @@ def test_a_worker_process_that_dies_is_a_failed_row(inputs, tmp_path, monkeypatc
     assert rows["take_a"]["failure"].startswith("the worker process ended with signal 9")
     assert rows["broken"]["failure"] and "signal" not in rows["broken"]["failure"]
     assert not (out / "take_a" / MANIFEST).exists()
+
+
+@pytest.mark.parametrize("extra, problem", [
+    (["--jobs", "0"], "--jobs must be at least 1, got 0"),
+    (["--threads", "-1"], "--threads must be 0 or more, got -1"),
+    (["--jobs", "2", "--scheduler", "tcp://127.0.0.1:1"], "--jobs and --scheduler exclude"),
+])
+def test_bad_batch_options_are_one_line(inputs, tmp_path, extra, problem):
+    code, stdout, stderr = _run(["batch", str(inputs["bad"]), "-o", str(tmp_path / "o"),
+                                 *extra])
+    assert code == 1 and stdout == "" and len(stderr.strip().splitlines()) == 1
+    assert stderr.startswith("pointrig batch: error: ") and problem in stderr
+    assert not (tmp_path / "o").exists()

@@ -320,13 +320,15 @@ def run_batch(inputs: Sequence[str | Path], out: str | Path,
     OutputError
         ``out`` cannot be a writable folder (before any recording runs).
     ConfigError
-        No inputs, or ``jobs < 1``.
+        No inputs, ``jobs < 1`` or ``threads < 0``.
     PointrigError
         ``scheduler`` given without the ``batch`` extra, or the scheduler cannot be reached.
     """
     options = options or BatchOptions()
     if jobs < 1:
         raise ConfigError(f"--jobs must be at least 1, got {jobs}")
+    if threads is not None and threads < 0:
+        raise ConfigError(f"--threads must be 0 or more, got {threads}")
     if threads is None:
         threads = 1 if scheduler else max(1, (os.cpu_count() or 1) // jobs)
     client = _connect(scheduler) if scheduler else None  # before anything is made
