@@ -1,9 +1,8 @@
 """The ``pointrig`` command line. The only module that prints or exits.
 
 Subcommands: ``extract``, ``batch``, ``demo``, ``synth``, ``evaluate``, ``info``,
-``preview``. Heavy imports (scipy,
-the pipeline) happen inside the subcommands so that ``pointrig --help`` and ``pointrig info``
-start fast.
+``preview``. Heavy imports (scipy, the pipeline) happen inside the subcommands so that
+``pointrig --help`` and ``pointrig info`` start fast.
 """
 
 from __future__ import annotations
