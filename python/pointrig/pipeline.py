@@ -39,6 +39,7 @@ import numpy as np
 from .config import PipelineConfig
 from .errors import InputError, OutputError, PointrigError
 from .export import write_bvh, write_gltf
+from .geometry import reuse_normals
 from .io.outdir import PARTIAL, OutputDir, fault_point
 from .naming import apply_names, read_name_mapping
 from .output import build_skeleton, output_skeleton
@@ -139,12 +140,21 @@ def extract(
     with_rig = out_dir is not None and stop_after == "joints" and rig_available(config.rig.mesh)
     with_usd = with_rig and usd_available(config.rig.usd)
     args = (resume, stop_after, pictures, progress, _Naming(mapping, bone_names), with_rig, with_usd)
-    if out_dir is None:
-        return _extract(seq, config, None, *args)
-    if isinstance(out_dir, OutputDir):  # already checked and locked by the caller
-        return _extract_into(out_dir, seq, config, *args)
-    with OutputDir(out_dir) as od:
-        return _extract_into(od, seq, config, *args)
+    with _compute_once():
+        if out_dir is None:
+            return _extract(seq, config, None, *args)
+        if isinstance(out_dir, OutputDir):  # already checked and locked by the caller
+            return _extract_into(out_dir, seq, config, *args)
+        with OutputDir(out_dir) as od:
+            return _extract_into(od, seq, config, *args)
+
+
+@contextmanager
+def _compute_once() -> Iterator[None]:
+    """The run's settings that save work and leave every result as it is: a frame's normals
+    estimated once for the steps that use them (:func:`pointrig.geometry.reuse_normals`)."""
+    with reuse_normals():
+        yield
 
 
 def _extract_into(od: OutputDir, seq: PointSequence, config: PipelineConfig, resume: bool,

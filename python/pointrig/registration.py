@@ -40,6 +40,7 @@ from .geometry import (
     chamfer_misfit,
     estimate_normals,
     farthest_point_sampling,
+    keep_normals,
     knn_graph,
     mean_spacing,
     nearest_distances,
@@ -489,6 +490,8 @@ def register_sequence(
     if scores[i] >= (1.0 - config.rest_fit_margin) * scores[0]:
         i = 0
     best = results[i]
+    # the refinement estimates the data normals again with the chosen rest points' radius
+    keep_normals(config.normal_radius * mean_spacing(best.rest_points))
     log.info("rest frame: candidates %s, mean misfit %s cm; chose %d",
              candidates, [round(100 * v, 3) for v in scores], candidates[i])
     # keys as strings, as the JSON of the checkpoint and skeleton.json hold them (a saved and
