@@ -152,8 +152,13 @@ def extract(
 @contextmanager
 def _compute_once() -> Iterator[None]:
     """The run's settings that save work and leave every result as it is: a frame's normals
-    estimated once for the steps that use them (:func:`pointrig.geometry.reuse_normals`)."""
-    with reuse_normals():
+    estimated once for the steps that use them (:func:`pointrig.geometry.reuse_normals`), and
+    the BLAS (numpy's and scipy's OpenBLAS) on one thread: its products here are small, the
+    pipeline's parallel parts are its own pools and the Rust core, and idle BLAS threads
+    spin-wait on the cores those need."""
+    from threadpoolctl import threadpool_limits
+
+    with reuse_normals(), threadpool_limits(1, user_api="blas"):
         yield
 
 
