@@ -31,6 +31,8 @@ def runs(quick: bool) -> list[list[str]]:
             ["bench_render"],
             ["bench_background", "--frames", "2"],
             ["bench_speed", "--frames", "20"],
+            ["bench_speed", "--stages", "--frames", "20"],
+            ["bench_dembones", "--frames", "20"],
             ["bench_suite", "--frames", "20", "--only", "human,hand"],
         ]
     return [
@@ -40,6 +42,8 @@ def runs(quick: bool) -> list[list[str]]:
         ["bench_render"],
         ["bench_background"],
         ["bench_speed"],
+        ["bench_speed", "--stages"],
+        ["bench_dembones"],
         ["bench_suite"],
     ]
 
