@@ -33,6 +33,7 @@ def runs(quick: bool) -> list[list[str]]:
             ["bench_speed", "--frames", "20"],
             ["bench_speed", "--stages", "--frames", "20"],
             ["bench_dembones", "--frames", "20"],
+            ["bench_scaling", "--quick"],
             ["bench_suite", "--frames", "20", "--only", "human,hand"],
         ]
     return [
@@ -44,6 +45,7 @@ def runs(quick: bool) -> list[list[str]]:
         ["bench_speed"],
         ["bench_speed", "--stages"],
         ["bench_dembones"],
+        ["bench_scaling", "--quick"],  # the whole table takes hours: run it on its own
         ["bench_suite"],
     ]
 
