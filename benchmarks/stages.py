@@ -5,7 +5,9 @@ Python code (which holds the interpreter lock, so it runs on one core whatever t
 for the length of a ``with`` block and records, per stage, the wall seconds
 (``time.perf_counter``) and the process CPU seconds (``time.process_time``: every thread,
 Rust's included) spent in it, exclusive of the stages nested in it (step 3's tracking inside
-step 3). Stages run one after another on the calling thread, so the process CPU time between a
+step 3). A stage function called from a worker thread (step 1's candidates' misfit when the
+candidates run side by side) counts in the stage that started the thread. Stages run one after
+another on the calling thread, so the process CPU time between a
 stage's entry and exit is that stage's. Time outside every stage (reading, imports, writing
 the pictures) is ``other``.
 
@@ -39,7 +41,7 @@ import pointrig.structure as struct_mod
 STAGES: tuple[tuple[str, Any, str], ...] = (
     ("clean-up", pipeline_mod, "_clean_input"),
     ("rest candidates", reg_mod, "rest_candidates"),
-    ("step 1 registration", reg_mod, "_register_from"),
+    ("step 1 registration", reg_mod, "register_sequence"),
     ("candidates' misfit", reg_mod, "sequence_misfit"),
     ("step 2 structure", struct_mod, "extract_structure"),
     ("step 3 tracking", joints_mod, "track_bones"),
