@@ -7,7 +7,7 @@ which failed::
     python -m benchmarks.run_all [--quick]
 
 ``--quick`` is a smoke run: 20-frame sequences, the suite on two sequences, the smaller sizes.
-The whole run takes about 25 minutes on two idle cores, most of it the accuracy suite.
+The whole run takes about 35 minutes on two idle cores, most of it the accuracy suite.
 """
 
 from __future__ import annotations
