@@ -15,12 +15,23 @@ difference between their joints, and the ratio serial / default::
     python -m benchmarks.bench_speed --only human,girl_run,hand --repeats 2
 
 Each form runs ``--repeats`` times, alternating, and the fastest run of each is reported.
+
+``--stages`` prints instead the profile of one run per sequence (:mod:`benchmarks.stages`):
+per stage the wall and CPU seconds, CPU / wall, and the CPU seconds spent in Python code with
+their share of the stage's wall time (a second, profiled run; ``--no-python`` leaves it out),
+writing the outputs (without pictures) as ``pointrig extract --no-pictures`` does;
+``--unshared`` adds the seconds of the pipeline without its run-wide sharing (each step
+estimating its own normals, the BLAS on its default threads; :func:`unshared`) and the CPU
+ratio::
+
+    python -m benchmarks.bench_speed --stages [--unshared] [--no-python]   # human, 100 frames
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import tempfile
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager, nullcontext
@@ -29,9 +40,11 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 import pointrig.joints as joints_mod
+import pointrig.pipeline as pipeline_mod
 import pointrig.preprocess as pre_mod
 import pointrig.registration as reg_mod
 from benchmarks.sets import add_sequence_options, chosen, suite
+from benchmarks.stages import StageProfile, table
 from pointrig.config import PipelineConfig
 from pointrig.pipeline import extract
 from pointrig.sequence import PointSequence
@@ -121,15 +134,65 @@ def timed(seq: PointSequence, cfg: PipelineConfig) -> tuple[dict[str, float], np
     return secs, np.asarray(out.skeleton.joint_positions)
 
 
+def profile_run(seq: PointSequence, cfg: PipelineConfig, python: bool = False
+                ) -> StageProfile:
+    """The per-stage seconds of one :func:`extract` of ``seq`` writing its outputs (no
+    pictures) into a temporary folder; with ``python`` under the profiler."""
+    prof = StageProfile(python=python)
+    with tempfile.TemporaryDirectory() as tmp, prof.recording():
+        extract(seq, cfg, tmp, pictures=False)
+    return prof
+
+
+@contextmanager
+def unshared() -> Iterator[None]:
+    """The pipeline without its run-wide settings (``pipeline._compute_once``): every step
+    estimates its own normals, and numpy's and scipy's BLAS run on their default threads."""
+    saved = pipeline_mod._compute_once
+    pipeline_mod._compute_once = nullcontext
+    try:
+        yield
+    finally:
+        pipeline_mod._compute_once = saved
+
+
+def print_stages(name: str, seq: PointSequence, cfg: PipelineConfig, python: bool,
+                 reference: bool = False) -> None:
+    """The per-stage table of ``seq`` (:func:`benchmarks.stages.table`), with ``reference``
+    beside the :func:`unshared` form's seconds (run first)."""
+    ref = None
+    if reference:
+        with unshared():
+            ref = profile_run(seq, cfg)
+    timed = profile_run(seq, cfg)
+    profiled = profile_run(seq, cfg, python=True) if python else None
+    counts = np.asarray(seq.counts)
+    print(f"\n{name}: {len(seq)} frames, {int(np.median(counts))} points a frame (median); "
+          f"{timed.total.wall:.2f} s wall, {timed.total.cpu:.2f} CPU-s; "
+          f"{1e3 * timed.times['step 1 registration'].wall / max(len(seq), 1):.1f} ms a frame "
+          "in step 1")
+    print(table(timed, profiled, ref, "unshared"), flush=True)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     add_sequence_options(ap, only="human")
     ap.add_argument("--repeats", type=int, default=1)
+    ap.add_argument("--stages", action="store_true",
+                    help="the per-stage profile of the default form instead")
+    ap.add_argument("--no-python", action="store_true",
+                    help="with --stages: leave out the profiled run (the Python share)")
+    ap.add_argument("--unshared", action="store_true",
+                    help="with --stages: also the pipeline without its run-wide sharing")
     a = ap.parse_args(argv)
     if a.repeats < 1:
         ap.error("--repeats must be >= 1")
     sequences, only = chosen(ap, a)
     cfg = PipelineConfig()
+    if a.stages:
+        for name, syn in suite(a.frames, only, sequences):
+            print_stages(name, syn.to_point_sequence(), cfg, not a.no_python, a.unshared)
+        return 0
     cols = (*STAGES, "total")
     print(f"{'sequence':<16} {'form':<10}" + "".join(f"{c:>14}" for c in cols)
           + f"{'joints differ (m)':>19}")

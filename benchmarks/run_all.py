@@ -7,7 +7,7 @@ which failed::
     python -m benchmarks.run_all [--quick]
 
 ``--quick`` is a smoke run: 20-frame sequences, the suite on two sequences, the smaller sizes.
-The whole run takes about 25 minutes on two idle cores, most of it the accuracy suite.
+The whole run takes about 35 minutes on two idle cores, most of it the accuracy suite.
 """
 
 from __future__ import annotations
@@ -31,6 +31,9 @@ def runs(quick: bool) -> list[list[str]]:
             ["bench_render"],
             ["bench_background", "--frames", "2"],
             ["bench_speed", "--frames", "20"],
+            ["bench_speed", "--stages", "--frames", "20"],
+            ["bench_dembones", "--frames", "20"],
+            ["bench_scaling", "--quick"],
             ["bench_suite", "--frames", "20", "--only", "human,hand"],
         ]
     return [
@@ -40,6 +43,9 @@ def runs(quick: bool) -> list[list[str]]:
         ["bench_render"],
         ["bench_background"],
         ["bench_speed"],
+        ["bench_speed", "--stages"],
+        ["bench_dembones"],
+        ["bench_scaling", "--quick"],  # the whole table takes hours: run it on its own
         ["bench_suite"],
     ]
 

@@ -4,7 +4,9 @@ the surface of the frame they came from."""
 from __future__ import annotations
 
 import numpy as np
-from benchmarks.bench_registration import correspondence_error, nearest_observed
+from benchmarks.bench_registration import correspondence_error, nearest_observed, sequence_errors
+
+from pointrig.registration import RegistrationResult
 
 
 def _surface_motion(n_frames: int = 5, n: int = 400) -> np.ndarray:
@@ -57,3 +59,25 @@ def test_nearest_observed_against_brute_force() -> None:
     want = np.stack([np.linalg.norm(p[:, None] - f[None], axis=2).min(1)
                      for p, f in zip(points, frames)])
     np.testing.assert_allclose(got, want, rtol=1e-12)
+
+
+def test_sequence_errors_measure_from_the_chosen_rest_frame() -> None:
+    """A registration from rest frame 3 that follows the surface exactly (rest points 1 mm off
+    frame 3's samples): the sequence table's correspondence error is zero (oracle: the exact
+    motion), which it is not when measured from frame 0; the registered points lie 1 mm from
+    the observed ones (oracle: the offset)."""
+    surface = _surface_motion()
+    r = 3
+    offset = 0.001 / np.sqrt(3)
+    rest = surface[r] + offset
+    points = surface + offset
+    n = len(surface)
+    res = RegistrationResult(rest_points=rest, points=points, sigma2=np.zeros(n),
+                             iterations=np.zeros(n, dtype=np.int64), energy=np.zeros(n),
+                             params={"rest_frame_index": r})
+    no_mean, no_p90, ce = sequence_errors(res, list(surface), surface)
+    assert ce < 1e-12
+    np.testing.assert_allclose([no_mean, no_p90], 0.001, rtol=1e-9)
+    res.params["rest_frame_index"] = 0
+    # from frame 0 the rest points are tied to the wrong samples or to none (no mean)
+    assert not sequence_errors(res, list(surface), surface)[2] < 0.01

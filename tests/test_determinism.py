@@ -80,3 +80,23 @@ def test_pool_size_follows_workers_and_tasks(monkeypatch):
     assert pool_size(3, 100) == 3 and pool_size(3, 1) == 1 and pool_size(1, 0) == 1
     monkeypatch.setattr(os, "cpu_count", lambda: None)
     assert pool_size(0, 4) == 1
+
+
+def test_rest_frame_candidates_side_by_side_equal_one_after_another():
+    """The rest-frame candidates of ``rest_frame = "fit"`` register side by side on
+    ``[registration] workers`` threads: with two workers the chosen registration and every
+    candidate's misfit are bit for bit those of one worker (one after the other), on a
+    sequence with three candidates."""
+    from pointrig.config import RegistrationConfig
+    from pointrig.registration import register_sequence, rest_candidates
+
+    syn = synthesize("human", n_frames=8, seed=4, camera=Camera.kinect(320),
+                     noise=NoiseConfig(seed=4), speed=3.0)
+    seq = syn.to_point_sequence()
+    assert len(rest_candidates(RegistrationConfig(), seq.frames)) == 3
+    side = register_sequence(seq, RegistrationConfig(workers=2))
+    alone = register_sequence(seq, RegistrationConfig(workers=1))
+    assert side.params["rest_candidates_misfit"] == alone.params["rest_candidates_misfit"]
+    assert side.params["rest_frame_index"] == alone.params["rest_frame_index"]
+    np.testing.assert_array_equal(side.rest_points, alone.rest_points)
+    np.testing.assert_array_equal(side.points, alone.points)

@@ -246,7 +246,9 @@ class RegistrationConfig:
     # rounds of re-registration from step 3's skeleton, each followed by steps 2-3
     # (pointrig.registration.refine_registration; 0 = one pass, §4)
     refine_rounds: int = 1
-    workers: int = 0  # threads for the two chains and the refined frames (0 = all cores)
+    # threads for the rest-frame candidates, the two chains and the refined frames (0 = all
+    # cores)
+    workers: int = 0
 
     def __post_init__(self) -> None:
         c = _Checks(self, "registration")

@@ -11,7 +11,11 @@ The heavy kernels run in the Rust core (``_core``).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import hashlib
+import threading
+from collections import OrderedDict
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -34,6 +38,8 @@ __all__ = [
     "nearest_distances",
     "remove_sparse_points",
     "remove_statistical_outliers",
+    "keep_normals",
+    "reuse_normals",
     "surface_cover",
 ]
 
@@ -185,7 +191,82 @@ def estimate_normals(
     pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
     src = pts if source is None else np.ascontiguousarray(source, dtype=np.float64)
     cam = tuple(float(v) for v in camera)
-    return _core.surface_normals(pts, src, float(radius), cam)
+    if not _NORMALS.active():
+        return _core.surface_normals(pts, src, float(radius), cam)
+    key = (_digest(pts), None if source is None else _digest(src), float(radius), cam)
+    found = _NORMALS.get(key)
+    if found is not None:
+        return found.copy()
+    out = _core.surface_normals(pts, src, float(radius), cam)
+    _NORMALS.put(key, out.copy())
+    return out
+
+
+def _digest(a: np.ndarray) -> tuple[tuple[int, ...], bytes]:
+    """The shape and a 128-bit hash of the bytes of the contiguous float64 array ``a``."""
+    return a.shape, hashlib.blake2b(memoryview(a).cast("B"), digest_size=16).digest()
+
+
+class _NormalsMemo:
+    """The normals :func:`estimate_normals` computed inside :func:`reuse_normals`, by the
+    content of their points and source, radius and camera; at most ``budget`` bytes, the
+    oldest dropped first."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.depth = 0
+        self.budget = 0
+        self.store: OrderedDict[tuple, np.ndarray] = OrderedDict()
+        self.nbytes = 0
+
+    def active(self) -> bool:
+        return self.depth > 0
+
+    def get(self, key: tuple) -> np.ndarray | None:
+        with self.lock:
+            return self.store.get(key)
+
+    def put(self, key: tuple, value: np.ndarray) -> None:
+        with self.lock:
+            if self.depth == 0 or key in self.store or value.nbytes > self.budget:
+                return
+            self.store[key] = value
+            self.nbytes += value.nbytes
+            while self.nbytes > self.budget:
+                self.nbytes -= self.store.popitem(last=False)[1].nbytes
+
+
+_NORMALS = _NormalsMemo()
+
+
+def keep_normals(radius: float) -> None:
+    """Drop the kept normals (:func:`reuse_normals`) of every radius but ``radius`` (metres):
+    those of the rest-frame candidates that were not chosen."""
+    with _NORMALS.lock:
+        for key in [k for k in _NORMALS.store if k[2] != float(radius)]:
+            _NORMALS.nbytes -= _NORMALS.store.pop(key).nbytes
+
+
+@contextmanager
+def reuse_normals(max_bytes: int = 256 << 20) -> Iterator[None]:
+    """Inside this block, :func:`estimate_normals` returns the normals it already computed
+    for the same points, source, radius and camera (the same values, computed once): the
+    pipeline estimates each frame's normals in several places (step 1 and its refinement, the
+    two rounds of step 3). At most ``max_bytes`` of normals are kept (the oldest dropped
+    first; the largest budget of the blocks open at once applies); they are released when the
+    outermost block ends."""
+    with _NORMALS.lock:
+        _NORMALS.depth += 1
+        _NORMALS.budget = max(_NORMALS.budget, int(max_bytes))
+    try:
+        yield
+    finally:
+        with _NORMALS.lock:
+            _NORMALS.depth -= 1
+            if _NORMALS.depth == 0:
+                _NORMALS.store.clear()
+                _NORMALS.nbytes = 0
+                _NORMALS.budget = 0
 
 
 def farthest_point_sampling(points: np.ndarray, n: int, seed: int = 0) -> np.ndarray:

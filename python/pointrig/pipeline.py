@@ -42,6 +42,7 @@ import numpy as np
 from .config import PipelineConfig
 from .errors import InputError, OutputError, PointrigError
 from .export import write_bvh, write_gltf
+from .geometry import reuse_normals
 from .io.outdir import PARTIAL, OutputDir, fault_point
 from .naming import apply_names, read_name_mapping
 from .output import build_skeleton, output_skeleton
@@ -146,12 +147,26 @@ def extract(
         and report_available(config.rig.report)
     args = (resume, stop_after, pictures, progress, _Naming(mapping, bone_names), with_rig,
             with_usd, with_report)
-    if out_dir is None:
-        return _extract(seq, config, None, *args)
-    if isinstance(out_dir, OutputDir):  # already checked and locked by the caller
-        return _extract_into(out_dir, seq, config, *args)
-    with OutputDir(out_dir) as od:
-        return _extract_into(od, seq, config, *args)
+    with _compute_once():
+        if out_dir is None:
+            return _extract(seq, config, None, *args)
+        if isinstance(out_dir, OutputDir):  # already checked and locked by the caller
+            return _extract_into(out_dir, seq, config, *args)
+        with OutputDir(out_dir) as od:
+            return _extract_into(od, seq, config, *args)
+
+
+@contextmanager
+def _compute_once() -> Iterator[None]:
+    """The run's settings that save work and leave every result as it is: a frame's normals
+    estimated once for the steps that use them (:func:`pointrig.geometry.reuse_normals`), and
+    the BLAS (numpy's and scipy's OpenBLAS) on one thread: its products here are small, the
+    pipeline's parallel parts are its own pools and the Rust core, and idle BLAS threads
+    spin-wait on the cores those need."""
+    from threadpoolctl import threadpool_limits
+
+    with reuse_normals(), threadpool_limits(1, user_api="blas"):
+        yield
 
 
 def _extract_into(od: OutputDir, seq: PointSequence, config: PipelineConfig, resume: bool,

@@ -40,6 +40,7 @@ from .geometry import (
     chamfer_misfit,
     estimate_normals,
     farthest_point_sampling,
+    keep_normals,
     knn_graph,
     mean_spacing,
     nearest_distances,
@@ -430,7 +431,8 @@ def register_sequence(
     :func:`rest_candidates` and the result whose points explain the frames best
     (:func:`sequence_misfit`) is returned, unless it beats the first candidate by no more than
     ``rest_fit_margin``; its ``params["rest_candidates_misfit"]`` maps each candidate (the
-    frame index as a string, as in JSON) to its misfit (metres).
+    frame index as a string, as in JSON) to its misfit (metres). The candidates run side by
+    side on ``config.workers`` threads (the same result as one after the other).
 
     Parameters
     ----------
@@ -472,23 +474,42 @@ def register_sequence(
         return _register_from(seq, config, rf, progress, partial, on_frame)
     candidates = rest_candidates(config, seq.frames)
     k = len(candidates)
+    done_by = [0] * k
+    counting = threading.Lock()
 
     def sub(i: int) -> Callable[[int, int], None] | None:
         if progress is None:
             return None
-        return lambda done, total: progress(i * total + done, k * total)
+
+        def report(done: int, total: int) -> None:
+            with counting:
+                done_by[i] = done
+                progress(sum(done_by), k * total)
+        return report
 
     trunc = _misfit_cap(config)
-    results, scores = [], []
-    for i, rf in enumerate(candidates):
-        results.append(_register_from(seq, config, rf, sub(i), partial, on_frame))
-        scores.append(sequence_misfit(results[-1].points, seq.frames, trunc))
+
+    def candidate(i: int) -> tuple[RegistrationResult, float]:
+        res = _register_from(seq, config, candidates[i], sub(i), partial, on_frame)
+        return res, sequence_misfit(res.points, seq.frames, trunc)
+
+    # the candidates are independent registrations (each its own rest points, graph and
+    # chains): they run side by side, each with the same arithmetic as alone
+    pool = ThreadPoolExecutor(max_workers=pool_size(config.workers, k))
+    try:
+        outcomes = list(pool.map(candidate, range(k)))
+    finally:
+        pool.shutdown(cancel_futures=True)
+    results = [r for r, _ in outcomes]
+    scores = [v for _, v in outcomes]
     # the best fit, unless it explains the frames better than the first candidate by no more
     # than rest_fit_margin
     i = int(np.argmin(scores))
     if scores[i] >= (1.0 - config.rest_fit_margin) * scores[0]:
         i = 0
     best = results[i]
+    # the refinement estimates the data normals again with the chosen rest points' radius
+    keep_normals(config.normal_radius * mean_spacing(best.rest_points))
     log.info("rest frame: candidates %s, mean misfit %s cm; chose %d",
              candidates, [round(100 * v, 3) for v in scores], candidates[i])
     # keys as strings, as the JSON of the checkpoint and skeleton.json hold them (a saved and
