@@ -55,21 +55,31 @@ def arm_spheres(t: int) -> tuple[np.ndarray, np.ndarray]:
 
 def render_depth(t: int) -> np.ndarray:
     """Depth image ``(HEIGHT, WIDTH)`` uint16 millimetres of frame ``t``: the nearest of the
-    wall and the arm's spheres along each pixel's ray."""
+    wall and the arm's spheres along each pixel's ray (each sphere tested on the pixel box
+    its outline projects into)."""
     k = INTRINSICS
-    v, u = np.mgrid[0:HEIGHT, 0:WIDTH]
-    rays = np.stack([(u - k["cx"]) / k["fx"], (v - k["cy"]) / k["fy"],
-                     np.ones(u.shape)], axis=-1).reshape(-1, 3)  # z = 1 per ray
-    z = np.full(len(rays), WALL_M)
-    rr = np.einsum("ij,ij->i", rays, rays)
+    z = np.full((HEIGHT, WIDTH), WALL_M)
     for c, r in zip(*arm_spheres(t)):
-        # |s ray - c|^2 = r^2, nearest root s is the depth (ray z = 1)
+        # the sphere's outline lies within r / (c_z - r) of its centre's ray (tangent plane)
+        reach = r / (c[2] - r)
+        u0, u1 = (k["cx"] + k["fx"] * (c[0] / c[2] + np.array([-reach, reach]) * 1.5)).round()
+        v0, v1 = (k["cy"] + k["fy"] * (c[1] / c[2] + np.array([-reach, reach]) * 1.5)).round()
+        u0, v0 = max(int(u0), 0), max(int(v0), 0)
+        u1, v1 = min(int(u1) + 1, WIDTH), min(int(v1) + 1, HEIGHT)
+        if u0 >= u1 or v0 >= v1:
+            continue
+        v, u = np.mgrid[v0:v1, u0:u1]
+        rays = np.stack([(u - k["cx"]) / k["fx"], (v - k["cy"]) / k["fy"],
+                         np.ones(u.shape)], axis=-1)  # z = 1 per ray
+        # |s ray - c|^2 = r^2: the nearer root s is the depth
+        rr = np.einsum("...i,...i->...", rays, rays)
         bq = rays @ c
         disc = bq * bq - rr * (c @ c - r * r)
         hit = disc > 0
         s = (bq[hit] - np.sqrt(disc[hit])) / rr[hit]
-        z[hit] = np.minimum(z[hit], s)
-    return np.rint(z * 1000.0).astype(np.uint16).reshape(HEIGHT, WIDTH)
+        box = z[v0:v1, u0:u1]
+        box[hit] = np.minimum(box[hit], s)
+    return np.rint(z * 1000.0).astype(np.uint16)
 
 
 def write_depth_sequence(folder: str | Path, n_frames: int, first: int = 0) -> Path:
