@@ -3,12 +3,13 @@
 A synthetic 640x480 depth capture is written frame by frame as 16-bit PNGs (millimetres) with
 its ``intrinsics.json`` (:func:`write_depth_sequence`): a back wall 3 m away fills every pixel,
 so each frame reads as 307,200 points (7.4 MB of float64), and a two-link arm of spheres in
-front of it swings its two joints. ``--far 2.5`` keeps the arm (about 9,000 points a frame),
+front of it swings its two joints. ``--far 2.5`` keeps the arm (about 10,500 points a frame),
 as a user isolates a subject. Each run is a fresh ``pointrig extract`` process whose peak
 resident set is read from the kernel when it ends (``os.wait4``, ``ru_maxrss``)::
 
     python -m benchmarks.bench_memory                          # 100, 300 frames
-    python -m benchmarks.bench_memory --frames 100,300,900,1800 --step1-only-above 300
+    python -m benchmarks.bench_memory --frames 100,300,900,1800 --step1-only-above 100 \
+        --one-chain-above 300
 
 Prints, per frame count, the peak resident set of step 1 alone (``--stop-after
 registration``: reading, clean-up and registration) and of the whole pipeline (up to
@@ -108,11 +109,14 @@ def peak_rss_mb(cmd: list[str]) -> tuple[float, float, int]:
     return usage.ru_maxrss / 1024.0, time.perf_counter() - t0, proc.returncode
 
 
-def extract_command(frames: Path, out: Path, step1_only: bool) -> list[str]:
-    """The ``pointrig extract`` command measured."""
+def extract_command(frames: Path, out: Path, step1_only: bool, one_chain: bool = False
+                    ) -> list[str]:
+    """The ``pointrig extract`` command measured (``one_chain``: step 1 from frame 0 only,
+    ``--rest-frame 0``, instead of the best of three rest frames)."""
     cmd = [sys.executable, "-m", "pointrig", "extract", str(frames), "-o", str(out), "-q",
            "--no-pictures", "--far", str(FAR_M), "--no-resume"]
-    return cmd + (["--stop-after", "registration"] if step1_only else [])
+    return (cmd + (["--stop-after", "registration"] if step1_only else [])
+            + (["--rest-frame", "0"] if one_chain else []))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -120,13 +124,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", default="100,300", help="frame counts, comma-separated")
     ap.add_argument("--step1-only-above", type=int, default=10**9, metavar="F",
                     help="above F frames measure step 1 only (the whole pipeline takes long)")
+    ap.add_argument("--one-chain-above", type=int, default=10**9, metavar="F",
+                    help="above F frames register from frame 0 only (--rest-frame 0), a third "
+                         "of the default's step 1 time")
     ap.add_argument("--workdir", default=None, help="where the captures are written "
                     "(default: a temporary folder, removed afterwards)")
     a = ap.parse_args(argv)
     counts = [int(c) for c in a.frames.split(",")]
     full_frame_mb = WIDTH * HEIGHT * 3 * 8 / 1e6
-    print(f"{'frames':>6} {'all frames as read MB':>21} {'step 1 peak MB':>14} {'s':>6} "
-          f"{'pipeline peak MB':>16} {'s':>6}", flush=True)
+    print(f"{'frames':>6} {'all frames as read MB':>21} {'rest frame':>10} "
+          f"{'step 1 peak MB':>14} {'s':>6} {'pipeline peak MB':>16} {'s':>6}", flush=True)
     with tempfile.TemporaryDirectory(dir=a.workdir) as tmp:
         frames = Path(tmp) / "depth"
         written = 0
@@ -139,11 +146,13 @@ def main(argv: list[str] | None = None) -> int:
             for t in range(n):
                 os.link(frames / f"frame_{t:05d}.png", run / f"frame_{t:05d}.png")
             os.link(frames / "intrinsics.json", run / "intrinsics.json")
-            rss1, s1, rc1 = peak_rss_mb(extract_command(run, Path(tmp) / f"out1_{n}", True))
-            row = (f"{n:>6} {n * full_frame_mb:>21.0f} "
+            one = n > a.one_chain_above
+            rss1, s1, rc1 = peak_rss_mb(extract_command(run, Path(tmp) / f"out1_{n}", True, one))
+            row = (f"{n:>6} {n * full_frame_mb:>21.0f} {'0' if one else 'fit':>10} "
                    f"{rss1 if rc1 == 0 else float('nan'):>14.0f} {s1:>6.0f}")
             if n <= a.step1_only_above:
-                rss, s, rc = peak_rss_mb(extract_command(run, Path(tmp) / f"out_{n}", False))
+                rss, s, rc = peak_rss_mb(extract_command(run, Path(tmp) / f"out_{n}", False,
+                                                         one))
                 row += f" {rss if rc == 0 else float('nan'):>16.0f} {s:>6.0f}"
             else:
                 row += f" {'-':>16} {'-':>6}"
