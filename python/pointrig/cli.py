@@ -208,7 +208,7 @@ def _rest_frame_arg(text: str) -> int | str:
         return text
 
 
-def _read_configured(args: argparse.Namespace, cfg, spill=None):
+def _read_configured(args: argparse.Namespace, cfg, spill: str | os.PathLike | None = None):
     """The input as ``[preprocess]`` selects and cleans it, its frames kept on disk in the
     folder ``spill`` (read back on demand) when given."""
     from .background import remove_background
