@@ -7,7 +7,8 @@ which failed::
     python -m benchmarks.run_all [--quick]
 
 ``--quick`` is a smoke run: 20-frame sequences, the suite on two sequences, the smaller sizes.
-The whole run takes about 35 minutes on two idle cores, most of it the accuracy suite.
+The whole run takes about 35 minutes on two idle cores, most of it the accuracy suite and the
+memory runs (100 and 300 frames of 640x480 depth).
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ def runs(quick: bool) -> list[list[str]]:
             ["bench_dembones", "--frames", "20"],
             ["bench_scaling", "--quick"],
             ["bench_suite", "--frames", "20", "--only", "human,hand"],
+            ["bench_memory", "--frames", "20,40"],
         ]
     return [
         ["bench_kernels"],
@@ -47,6 +49,7 @@ def runs(quick: bool) -> list[list[str]]:
         ["bench_dembones"],
         ["bench_scaling", "--quick"],  # the whole table takes hours: run it on its own
         ["bench_suite"],
+        ["bench_memory"],
     ]
 
 

@@ -17,6 +17,7 @@ from scipy.spatial import cKDTree
 
 from .errors import EmptyFrameError
 from .geometry import _connected_pieces, median_spacing
+from .sequence import check_frame, frames_like
 
 if TYPE_CHECKING:
     from .sequence import PointSequence
@@ -333,7 +334,7 @@ def remove_background(seq: PointSequence, *, seed: int = 0,
     planes, cand = find_background_planes(seq.frames, seed=seed, **plane_options)
     if not planes:
         return seq, BackgroundReport([], np.zeros(seq.n_frames), cand)
-    out, removed = [], []
+    out, removed = frames_like(seq.frames), []  # on disk when the input frames are
     for i, pts in enumerate(seq.frames):
         dist = _band_distance(planes, pts)
         sub, dist = pts[dist >= 1.0], dist[dist >= 1.0]
@@ -355,7 +356,7 @@ def remove_background(seq: PointSequence, *, seed: int = 0,
             raise EmptyFrameError(
                 f"only {len(sub)} point(s) left after removing the background planes; "
                 "set [preprocess] background = \"keep\" and crop by hand", seq.source, frame=i)
-        out.append(sub)
+        out.append(check_frame(sub, seq.source, i))
         removed.append(1.0 - len(sub) / len(pts))
     new = seq.with_frames(out)
     return new, BackgroundReport(planes, np.asarray(removed), cand)

@@ -44,7 +44,7 @@ from typing import Any
 from .config import PipelineConfig
 from .errors import ConfigError, PointrigError
 from .io.atomic import atomic_path
-from .io.outdir import check_output_dir
+from .io.outdir import FRAMES, OutputDir, check_output_dir
 
 __all__ = ["HEADER", "BatchOptions", "BatchResult", "BatchRow", "Job", "format_table",
            "plan_jobs", "read_recording", "run_batch", "run_job"]
@@ -140,10 +140,12 @@ def plan_jobs(inputs: Sequence[str | Path], out: str | Path, options: BatchOptio
 def read_recording(path: str | Path, config: PipelineConfig, *, scale: float = 1.0,
                    intrinsics: str | Path | None = None, topic: str | None = None,
                    isolation: object = None, skip_bad_frames: bool = False,
+                   spill: str | os.PathLike | None = None,
                    background_note: Callable[[str], None] | None = None):
     """Read a recording as ``pointrig extract`` does: the frames and crop of ``[preprocess]``,
     the units checked (metres), static background planes removed under ``[preprocess]
-    background = "auto"`` (``background_note`` is given the removal's summary line).
+    background = "auto"`` (``background_note`` is given the removal's summary line); the
+    reduced frames are kept on disk in the folder ``spill`` (read back on demand) when given.
 
     Returns
     -------
@@ -159,7 +161,7 @@ def read_recording(path: str | Path, config: PipelineConfig, *, scale: float = 1
         path, start=pre.frame_start, stop=pre.frame_stop, stride=pre.frame_stride,
         crop_min=pre.crop_min, crop_max=pre.crop_max, voxel_size=pre.voxel_size,
         intrinsics=intrinsics, scale=scale, min_points=pre.min_points, topic=topic,
-        isolation=isolation, skip_bad_frames=skip_bad_frames,
+        isolation=isolation, skip_bad_frames=skip_bad_frames, spill=spill,
     )
     # before the background search, whose thresholds are metres too
     check_units(seq, pre.max_extent)
@@ -192,9 +194,13 @@ def run_job(job: Job) -> BatchRow:
     t0 = time.perf_counter()
     try:
         config = _with_workers(opts.config, job.threads)
-        seq = read_recording(job.input, config, scale=opts.scale, intrinsics=opts.intrinsics,
-                             topic=opts.topic)
-        res = extract(seq, config, job.output, resume=opts.resume, pictures=opts.pictures)
+        # the output folder checked and locked before the input is read; the frames wait on
+        # disk in its staging folder, as for extract
+        with OutputDir(job.output) as od:
+            seq = read_recording(job.input, config, scale=opts.scale,
+                                 intrinsics=opts.intrinsics, topic=opts.topic,
+                                 spill=od.staged(FRAMES))
+            res = extract(seq, config, od, resume=opts.resume, pictures=opts.pictures)
         row.frames = res.skeleton.n_frames if res.skeleton is not None else len(seq)
         row.joints = res.skeleton.n_joints if res.skeleton is not None else None
         row.warnings = list(res.warnings)

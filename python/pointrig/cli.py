@@ -210,12 +210,14 @@ def _rest_frame_arg(text: str) -> int | str:
         return text
 
 
-def _read_configured(args: argparse.Namespace, cfg):
+def _read_configured(args: argparse.Namespace, cfg, spill: str | os.PathLike | None = None):
+    """The input as ``[preprocess]`` selects and cleans it, its frames kept on disk in the
+    folder ``spill`` (read back on demand) when given."""
     from .batch import read_recording
 
     return read_recording(
         args.input, cfg, scale=args.scale, intrinsics=args.intrinsics, topic=args.topic,
-        isolation=_isolation(args), skip_bad_frames=args.skip_bad_frames,
+        isolation=_isolation(args), skip_bad_frames=args.skip_bad_frames, spill=spill,
         background_note=lambda line: print(f"[background] {line}", file=sys.stderr))
 
 
@@ -233,14 +235,15 @@ def _summary_line(res, out, input_s: float | None = None) -> str:
 
 def cmd_extract(args: argparse.Namespace) -> int:
     """Run the pipeline on a sequence."""
-    from .io.outdir import OutputDir
+    from .io.outdir import FRAMES, OutputDir
     from .pipeline import extract
 
     cfg = _config_from_args(args)
     # the output folder checked and locked before the input is read
     with OutputDir(args.output) as od:
         t0 = time.perf_counter()
-        seq = _read_configured(args, cfg)
+        # the frames wait on disk in the staging folder, so memory does not grow with them
+        seq = _read_configured(args, cfg, spill=od.staged(FRAMES))
         input_s = time.perf_counter() - t0
         res = extract(seq, cfg, od, resume=args.resume, stop_after=args.stop_after,
                       pictures=not args.no_pictures, progress=_ProgressPrinter(args.quiet),

@@ -31,7 +31,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -81,8 +81,9 @@ class ExtractResult:
     #: (``[preprocess] sparse_ratio``)
     sparse_removed: np.ndarray | None = None
     #: the ``F`` observed clouds ``(N_t, 3)`` after that clean-up, as steps 1-3 and the
-    #: joint-depth pass read them (metres)
-    frames: list[np.ndarray] | None = None
+    #: joint-depth pass read them (metres); on disk, read on demand, when the input's frames
+    #: were (:class:`pointrig.sequence.SpilledFrames`)
+    frames: Sequence[np.ndarray] | None = None
     #: the clean-up's look at outliers (recorded in ``skeleton.json`` as ``source.outliers``):
     #: ``suspect_frames`` (the frames that looked mostly like outliers, cleaned again against
     #: their dense points), ``left_max`` (the largest fraction of a cleaned frame's points that
@@ -233,7 +234,7 @@ def _extract(seq: PointSequence, config: PipelineConfig, od: OutputDir | None, r
     reg, reused, ckpt = _step1(seq, config, od, resume, timings, progress)
     fault_point("registered")
     result = ExtractResult(None, reg, timings=timings, reused_registration=reused,
-                           sparse_removed=removed, frames=list(seq.frames), outliers=outliers,
+                           sparse_removed=removed, frames=seq.frames, outliers=outliers,
                            warnings=warnings)
     if ckpt is not None:
         result.files["registration"] = ckpt

@@ -15,7 +15,6 @@ by :mod:`pointrig.background`.
 from __future__ import annotations
 
 import logging
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -27,9 +26,7 @@ from .geometry import (
     remove_sparse_points,
     remove_statistical_outliers,
 )
-
-if TYPE_CHECKING:
-    from .sequence import PointSequence
+from .sequence import PointSequence, check_frame, frames_like
 
 __all__ = ["OUTLIER_FACTOR", "OUTLIER_SUSPECT", "outlier_fraction", "remove_sparse_frames",
            "rest_surface"]
@@ -111,7 +108,7 @@ def remove_sparse_frames(seq: PointSequence, k: int = 10, ratio: float = 4.0,
     if ratio <= 0:
         left[:] = [outlier_fraction(p, k) for p in seq.frames] if report is not None else 0.0
         return seq, np.zeros(seq.n_frames)
-    out, removed = [], np.zeros(seq.n_frames)
+    out, removed = frames_like(seq.frames), np.zeros(seq.n_frames)  # on disk if the input is
     for i, pts in enumerate(seq.frames):
         kept = remove_sparse_points(pts, k, ratio)
         left[i] = outlier_fraction(kept, k)
@@ -124,7 +121,7 @@ def remove_sparse_frames(seq: PointSequence, k: int = 10, ratio: float = 4.0,
                 f"only {len(kept)} point(s) left after removing sparse points (fewer than "
                 f"{min_points}); set [preprocess] sparse_ratio = 0 to keep them", seq.source,
                 frame=i)
-        out.append(kept)
+        out.append(check_frame(kept, seq.source, i))
         removed[i] = 1.0 - len(kept) / max(len(pts), 1)
     return seq.with_frames(out), removed
 

@@ -5,19 +5,208 @@ Notation follows the paper (§3): frame ``t`` holds ``N_t`` original points ``V^
 
 from __future__ import annotations
 
+import os
+import tempfile
+import threading
+import weakref
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, overload
 
 import numpy as np
 
-from .errors import EmptyFrameError, InputError
+from .errors import EmptyFrameError, InputError, OutputError
 
-__all__ = ["MAX_COORD", "PointSequence", "check_units", "frame_extent"]
+__all__ = ["MAX_COORD", "PointSequence", "SpilledFrames", "check_frame", "check_units",
+           "frame_extent", "frames_like"]
 
 #: Largest coordinate magnitude (metres) a point may have, as the native core accepts
 #: (``rust/core/error.rs`` ``MAX_COORD``): far beyond any depth camera's reach.
 MAX_COORD = 1e12
+
+
+def check_frame(points: Any, source: str, frame: int) -> np.ndarray:
+    """One frame as :class:`PointSequence` holds it: ``(N, 3)`` C-contiguous float64.
+
+    Raises
+    ------
+    InputError
+        A shape other than ``(N, 3)``, NaN/inf coordinates or a coordinate beyond
+        :data:`MAX_COORD` (naming ``source`` and ``frame``).
+    EmptyFrameError
+        No points.
+    """
+    arr = np.asarray(points, dtype=np.float64)
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise InputError(f"expected points of shape (N, 3), got {arr.shape}", source,
+                         frame=frame)
+    if arr.shape[0] == 0:
+        raise EmptyFrameError("frame has no points", source, frame=frame)
+    bad = ~np.isfinite(arr).all(axis=1)
+    if bad.any():
+        raise InputError(
+            f"{int(bad.sum())} point(s) with NaN/inf coordinates "
+            f"(first at row {int(np.argmax(bad))})",
+            source,
+            frame=frame,
+        )
+    far = np.abs(arr).max(axis=1) > MAX_COORD
+    if far.any():
+        raise InputError(
+            f"{int(far.sum())} point(s) farther than {MAX_COORD:g} m from the origin "
+            f"(first at row {int(np.argmax(far))}); pointrig works in metres",
+            source, frame=frame)
+    return np.ascontiguousarray(arr)
+
+
+class _SpillFile:
+    """The file behind :class:`SpilledFrames`: frames appended as raw float64, removed from
+    the folder as soon as it is opened (the open descriptor keeps it until closed, so nothing
+    is left behind even when the process is killed)."""
+
+    def __init__(self, folder: Path):
+        self.folder = folder
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            self.fd, name = tempfile.mkstemp(prefix=".frames-", suffix=".f64", dir=folder)
+        except OSError as exc:
+            raise OutputError(f"cannot keep the frames on disk: {exc.strerror or exc}",
+                              folder) from None
+        try:
+            os.unlink(name)
+            self.name = None
+        except OSError:  # a platform that cannot remove an open file: removed when closed
+            self.name = name
+        self.offsets: list[int] = []  # byte offset of each frame
+        self.counts: list[int] = []  # points of each frame
+        self.size = 0
+        self.lock = threading.Lock()
+        weakref.finalize(self, _SpillFile._close, self.fd, self.name)
+
+    @staticmethod
+    def _close(fd: int, name: str | None) -> None:
+        os.close(fd)
+        if name is not None:
+            try:
+                os.unlink(name)
+            except OSError:
+                pass
+
+    def append(self, points: np.ndarray) -> None:
+        data = memoryview(points).cast("B")
+        with self.lock:
+            at = self.size
+            try:
+                done = 0
+                while done < len(data):
+                    done += os.pwrite(self.fd, data[done:], at + done)
+            except OSError as exc:
+                raise OutputError(f"cannot keep the frames on disk: {exc.strerror or exc}",
+                                  self.folder) from None
+            self.offsets.append(at)
+            self.counts.append(len(points))
+            self.size = at + len(data)
+
+    def read(self, row: int) -> np.ndarray:
+        out = np.empty((self.counts[row], 3), dtype=np.float64)
+        buf = memoryview(out).cast("B")
+        at, done = self.offsets[row], 0
+        while done < len(buf):
+            got = os.preadv(self.fd, [buf[done:]], at + done) if hasattr(os, "preadv") \
+                else _pread_into(self.fd, buf[done:], at + done)
+            if got <= 0:
+                raise OSError(f"the frame store ends at byte {at + done}")
+            done += got
+        return out
+
+
+def _pread_into(fd: int, buf: memoryview, offset: int) -> int:
+    """``os.preadv`` where the platform lacks it: read into ``buf`` from ``offset``."""
+    data = os.pread(fd, len(buf), offset)
+    buf[:len(data)] = data
+    return len(data)
+
+
+class SpilledFrames(Sequence[np.ndarray]):
+    """Frames kept on disk and read back on demand: a sequence of ``(N_t, 3)`` float64 arrays,
+    metres, whose memory is one frame at a time rather than the whole sequence.
+
+    Each frame is appended once (:meth:`append`) to a file in ``folder`` (which the file
+    leaves no trace in: it is unlinked at once) and read back, bit for bit, every time it is
+    indexed; the operating system's page cache keeps the reads cheap. Slices are views of the
+    same file. The file is closed when the last view of it is gone.
+
+    Parameters
+    ----------
+    folder
+        Where the file is made (created when missing), e.g. the output's staging folder.
+    """
+
+    def __init__(self, folder: str | Path, *, _file: _SpillFile | None = None,
+                 _rows: list[int] | None = None):
+        self._file = _file if _file is not None else _SpillFile(Path(folder))
+        self._rows = _rows
+
+    @property
+    def folder(self) -> Path:
+        """The folder of the file."""
+        return self._file.folder
+
+    def __repr__(self) -> str:
+        return f"SpilledFrames({len(self)} frames, {self.nbytes} bytes in {self.folder})"
+
+    def append(self, points: np.ndarray) -> None:
+        """Add a frame ``(N, 3)`` (float64, metres) at the end.
+
+        Raises
+        ------
+        OutputError
+            When the disk is full or the file cannot be written.
+        """
+        if self._rows is not None:
+            raise TypeError("cannot append to a view of spilled frames")
+        self._file.append(np.ascontiguousarray(points, dtype=np.float64))
+
+    def _all_rows(self) -> list[int] | range:
+        return self._rows if self._rows is not None else range(len(self._file.counts))
+
+    def __len__(self) -> int:
+        return len(self._all_rows())
+
+    @overload
+    def __getitem__(self, t: int) -> np.ndarray: ...
+
+    @overload
+    def __getitem__(self, t: slice) -> SpilledFrames: ...
+
+    def __getitem__(self, t: int | slice) -> np.ndarray | SpilledFrames:
+        rows = self._all_rows()
+        if isinstance(t, slice):
+            return SpilledFrames(self.folder, _file=self._file, _rows=list(rows[t]))
+        return self._file.read(rows[t])
+
+    def select(self, index: Iterable[int]) -> SpilledFrames:
+        """The frames at ``index`` (in that order), a view of the same file."""
+        rows = self._all_rows()
+        return SpilledFrames(self.folder, _file=self._file, _rows=[rows[i] for i in index])
+
+    @property
+    def counts(self) -> np.ndarray:
+        """Points per frame, ``(F,)`` int64, without reading the frames."""
+        c = self._file.counts
+        return np.array([c[r] for r in self._all_rows()], dtype=np.int64)
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the frames on disk."""
+        return int(self.counts.sum()) * 24
+
+
+def frames_like(frames: Sequence[np.ndarray]) -> list[np.ndarray] | SpilledFrames:
+    """An empty frame store of the kind of ``frames``: new :class:`SpilledFrames` in the
+    same folder when they are spilled, else a list (frames in memory)."""
+    return SpilledFrames(frames.folder) if isinstance(frames, SpilledFrames) else []
 
 
 @dataclass
@@ -27,7 +216,9 @@ class PointSequence:
     Attributes
     ----------
     frames
-        ``F`` arrays, each ``(N_t, 3)`` float64, metres, in the camera (or input) frame.
+        ``F`` arrays, each ``(N_t, 3)`` float64, metres, in the camera (or input) frame: a
+        list (in memory) or :class:`SpilledFrames` (on disk, read on demand; its frames were
+        checked as they were added, with :func:`check_frame`).
     source
         Where the frames came from (a path), for messages and provenance.
     names
@@ -44,7 +235,7 @@ class PointSequence:
         subject isolation ``isolation``.
     """
 
-    frames: list[np.ndarray]
+    frames: list[np.ndarray] | SpilledFrames
     source: str = "<memory>"
     names: list[str] = field(default_factory=list)
     fmt: str = "memory"
@@ -53,31 +244,8 @@ class PointSequence:
     def __post_init__(self) -> None:
         if not self.names:
             self.names = [f"frame {i}" for i in range(len(self.frames))]
-        checked = []
-        for i, pts in enumerate(self.frames):
-            arr = np.asarray(pts, dtype=np.float64)
-            if arr.ndim != 2 or arr.shape[1] != 3:
-                raise InputError(
-                    f"expected points of shape (N, 3), got {arr.shape}", self.source, frame=i
-                )
-            if arr.shape[0] == 0:
-                raise EmptyFrameError("frame has no points", self.source, frame=i)
-            bad = ~np.isfinite(arr).all(axis=1)
-            if bad.any():
-                raise InputError(
-                    f"{int(bad.sum())} point(s) with NaN/inf coordinates "
-                    f"(first at row {int(np.argmax(bad))})",
-                    self.source,
-                    frame=i,
-                )
-            far = np.abs(arr).max(axis=1) > MAX_COORD
-            if far.any():
-                raise InputError(
-                    f"{int(far.sum())} point(s) farther than {MAX_COORD:g} m from the origin "
-                    f"(first at row {int(np.argmax(far))}); pointrig works in metres",
-                    self.source, frame=i)
-            checked.append(np.ascontiguousarray(arr))
-        self.frames = checked
+        if not isinstance(self.frames, SpilledFrames):  # spilled frames were checked when added
+            self.frames = [check_frame(pts, self.source, i) for i, pts in enumerate(self.frames)]
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -93,6 +261,8 @@ class PointSequence:
     @property
     def counts(self) -> np.ndarray:
         """Points per frame, ``(F,)`` int."""
+        if isinstance(self.frames, SpilledFrames):
+            return self.frames.counts
         return np.array([f.shape[0] for f in self.frames], dtype=np.int64)
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
@@ -117,7 +287,7 @@ class PointSequence:
             **self.meta,
         }
 
-    def with_frames(self, frames: list[np.ndarray],
+    def with_frames(self, frames: list[np.ndarray] | SpilledFrames,
                     names: list[str] | None = None) -> "PointSequence":
         """A new sequence of ``frames`` (checked as any) with this one's source, format and
         meta, and its frame names unless ``names`` are given."""
@@ -127,7 +297,9 @@ class PointSequence:
     def subset(self, start: int = 0, stop: int | None = None, stride: int = 1) -> "PointSequence":
         """Frames ``start:stop:stride`` as a new sequence."""
         idx = list(range(len(self.frames)))[start:stop:stride]
-        return self.with_frames([self.frames[i] for i in idx], [self.names[i] for i in idx])
+        frames = self.frames.select(idx) if isinstance(self.frames, SpilledFrames) \
+            else [self.frames[i] for i in idx]
+        return self.with_frames(frames, [self.names[i] for i in idx])
 
     @staticmethod
     def source_path(source: str) -> Path:

@@ -30,8 +30,8 @@ from typing import IO
 from ..errors import OutputError
 from .atomic import write_json
 
-__all__ = ["FAULT_ENV", "LOCK", "MANIFEST", "MANIFEST_FORMAT", "PARTIAL", "STAGING", "OutputDir",
-           "check_output_dir", "fault_point", "read_manifest"]
+__all__ = ["FAULT_ENV", "FRAMES", "LOCK", "MANIFEST", "MANIFEST_FORMAT", "PARTIAL", "STAGING",
+           "OutputDir", "check_output_dir", "fault_point", "read_manifest"]
 
 #: the file that names the complete set of outputs, written last
 MANIFEST = "manifest.json"
@@ -45,6 +45,9 @@ LOCK = ".pointrig.lock"
 REPLACED = ".replaced.json"
 #: the frames an interrupted step 1 registered, in the staging folder (never committed)
 PARTIAL = "registration.partial.npz"
+#: the folder of the staging folder where the input frames wait on disk during a run
+#: (:class:`pointrig.sequence.SpilledFrames`; a folder, so never committed)
+FRAMES = ".frames"
 #: files of the staging folder that are not outputs
 PRIVATE = (REPLACED, PARTIAL)
 #: files of the staging folder that an interrupted run leaves for the next one

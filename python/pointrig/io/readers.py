@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ConfigError, EmptyFrameError, FormatError, InputError
-from ..sequence import MAX_COORD, PointSequence
+from ..sequence import MAX_COORD, PointSequence, SpilledFrames, check_frame
 from .depthcam import Isolation
 from .recordings import RECORDING_FORMATS, detect_recording, isolate_points, read_recording
 
@@ -667,6 +667,7 @@ def read_sequence(
     topic: str | None = None,
     isolation: Isolation | None = None,
     skip_bad_frames: bool = False,
+    spill: str | Path | None = None,
 ) -> PointSequence:
     """Read a point-cloud sequence.
 
@@ -701,6 +702,13 @@ def read_sequence(
         an error; ``meta["frame_indices"]`` then gives each frame read its index among the
         folder's frames (naturally sorted, before ``start``/``stride``), and
         ``meta["skipped_frames"]`` each one left out: ``{"frame", "file", "problem"}``.
+    spill
+        A folder where the frames are kept on disk (:class:`pointrig.sequence.SpilledFrames`,
+        read back on demand, bit for bit) instead of in memory; ``None``: in memory.
+
+    Each frame is reduced (scaled, checked, isolated, cropped, downsampled) as soon as it is
+    read, and only what is left is kept: frames of a folder are never all in memory as read
+    (a recording or an ``.npz`` is read whole first).
 
     Returns
     -------
@@ -718,52 +726,11 @@ def read_sequence(
         raise InputError(f"stride must be >= 1, got {stride}", p)
     if topic is not None and fmt not in RECORDING_FORMATS:
         raise ConfigError(f"--topic is for ROS bags; {p} is a {fmt} input")
-    if fmt in RECORDING_FORMATS:
-        rec = read_recording(p, fmt, start=start, stop=stop, stride=stride, topic=topic,
-                             isolation=isolation, intrinsics=None if intrinsics is None else
-                             (intrinsics if isinstance(intrinsics, dict)
-                              else read_intrinsics(intrinsics)))
-        frames, names, meta = rec.frames, rec.names, rec.meta
-    elif fmt == "npz":
-        frames, names = _read_npz(p)
-        idx = list(range(len(frames)))[start:stop:stride]
-        frames = [frames[i] for i in idx]
-        names = [names[i] for i in idx]
-    else:
-        files = sorted((f for f in _frame_entries(p) if FRAME_FORMATS[f.suffix.lower()] == fmt),
-                       key=lambda f: natural_key(f.name))
-        positions = list(range(len(files)))[start:stop:stride]
-        files = files[start:stop:stride]
-        intr = None
-        if fmt == "depth-png":
-            if isinstance(intrinsics, dict):
-                intr, intr_path = intrinsics, None
-            else:
-                intr_path = Path(intrinsics) if intrinsics is not None else find_intrinsics(p)
-                intr = read_intrinsics(intr_path)
-            meta["intrinsics"] = {"path": None if intr_path is None else str(intr_path),
-                                  **{k: float(v) for k, v in intr.items()}}
-        frames, names, kept, skipped = [], [], [], []
-        for i, (f, pos) in enumerate(zip(files, positions)):
-            try:
-                frames.append(_read_frame_at(f, intr, i))
-            except InputError as exc:
-                if not skip_bad_frames:
-                    raise
-                log.warning("leaving out frame %d: %s", pos, exc)
-                skipped.append({"frame": pos, "file": f.name, "problem": exc.problem})
-                continue
-            names.append(f.name)
-            kept.append(pos)
-        if skip_bad_frames:
-            meta.update(frame_indices=kept, skipped_frames=skipped)
-    if isolation is not None and isolation.active:
-        meta["isolation"] = isolation.to_dict()
-    if len(frames) < min_frames:
-        raise InputError(f"sequence has {len(frames)} frame(s) after frame selection; "
-                         f"at least {min_frames} are needed", p)
-    out = []
-    for i, (pts, name) in enumerate(zip(frames, names)):
+    out: list[np.ndarray] | SpilledFrames = [] if spill is None else SpilledFrames(spill)
+
+    def keep(pts: np.ndarray, i: int, name: str) -> None:
+        """Frame ``i`` (file ``name``) as read: scaled, checked, isolated, cropped and
+        downsampled, then added to ``out``; what was read is not kept."""
         with np.errstate(over="ignore", invalid="ignore"):  # overflow is refused just below
             pts = np.asarray(pts, dtype=np.float64) * scale
         where = p / name if p.is_dir() else p
@@ -786,6 +753,66 @@ def read_sequence(
         if len(pts) < max(min_points, 1):
             raise EmptyFrameError(
                 f"{len(pts)} point(s) after crop/downsampling; at least {max(min_points, 1)} "
-                "needed", p / name if p.is_dir() else p, frame=i)
-        out.append(pts)
+                "needed", where, frame=i)
+        out.append(check_frame(pts, str(p), len(out)))
+
+    def enough(n: int) -> None:
+        if n < min_frames:
+            raise InputError(f"sequence has {n} frame(s) after frame selection; "
+                             f"at least {min_frames} are needed", p)
+
+    if fmt in RECORDING_FORMATS or fmt == "npz":
+        if fmt in RECORDING_FORMATS:
+            rec = read_recording(p, fmt, start=start, stop=stop, stride=stride, topic=topic,
+                                 isolation=isolation, intrinsics=None if intrinsics is None else
+                                 (intrinsics if isinstance(intrinsics, dict)
+                                  else read_intrinsics(intrinsics)))
+            frames, names, meta = rec.frames, rec.names, rec.meta
+        else:
+            frames, names = _read_npz(p)
+            idx = list(range(len(frames)))[start:stop:stride]
+            frames = [frames[i] for i in idx]
+            names = [names[i] for i in idx]
+        if isolation is not None and isolation.active:
+            meta["isolation"] = isolation.to_dict()
+        enough(len(frames))
+        for i, name in enumerate(names):
+            keep(frames[i], i, name)
+            frames[i] = None  # the frame as read is not needed any more
+        return PointSequence(out, str(p), names, fmt, meta)
+    # a folder of frame files: each read, reduced and kept (or spilled) before the next one,
+    # so that the frames as read are never all in memory
+    files = sorted((f for f in _frame_entries(p) if FRAME_FORMATS[f.suffix.lower()] == fmt),
+                   key=lambda f: natural_key(f.name))
+    positions = list(range(len(files)))[start:stop:stride]
+    files = files[start:stop:stride]
+    intr = None
+    if fmt == "depth-png":
+        if isinstance(intrinsics, dict):
+            intr, intr_path = intrinsics, None
+        else:
+            intr_path = Path(intrinsics) if intrinsics is not None else find_intrinsics(p)
+            intr = read_intrinsics(intr_path)
+        meta["intrinsics"] = {"path": None if intr_path is None else str(intr_path),
+                              **{k: float(v) for k, v in intr.items()}}
+    if not skip_bad_frames:
+        enough(len(files))
+    names, kept, skipped = [], [], []
+    for i, (f, pos) in enumerate(zip(files, positions)):
+        try:
+            pts = _read_frame_at(f, intr, i)
+        except InputError as exc:
+            if not skip_bad_frames:
+                raise
+            log.warning("leaving out frame %d: %s", pos, exc)
+            skipped.append({"frame": pos, "file": f.name, "problem": exc.problem})
+            continue
+        keep(pts, len(names), f.name)
+        names.append(f.name)
+        kept.append(pos)
+    if skip_bad_frames:
+        meta.update(frame_indices=kept, skipped_frames=skipped)
+        enough(len(names))
+    if isolation is not None and isolation.active:
+        meta["isolation"] = isolation.to_dict()
     return PointSequence(out, str(p), names, fmt, meta)
