@@ -93,9 +93,9 @@ def test_rest_frame_candidates_side_by_side_equal_one_after_another():
     syn = synthesize("human", n_frames=8, seed=4, camera=Camera.kinect(320),
                      noise=NoiseConfig(seed=4), speed=3.0)
     seq = syn.to_point_sequence()
-    assert len(rest_candidates(RegistrationConfig(), seq.frames)) == 3
-    side = register_sequence(seq, RegistrationConfig(workers=2))
-    alone = register_sequence(seq, RegistrationConfig(workers=1))
+    assert len(rest_candidates(RegistrationConfig(rest_candidates=3), seq.frames)) == 3
+    side = register_sequence(seq, RegistrationConfig(rest_candidates=3, workers=2))
+    alone = register_sequence(seq, RegistrationConfig(rest_candidates=3, workers=1))
     assert side.params["rest_candidates_misfit"] == alone.params["rest_candidates_misfit"]
     assert side.params["rest_frame_index"] == alone.params["rest_frame_index"]
     np.testing.assert_array_equal(side.rest_points, alone.rest_points)

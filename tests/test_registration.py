@@ -246,16 +246,16 @@ def test_fit_rest_frame_keeps_the_registration_that_explains_the_frames_best(
     assert RegistrationResult.load(tmp_path / "registration.npz").params == fit.params
 
 
-def test_default_rest_frame_leaves_legs_that_touch_in_the_visible_frame() -> None:
+def test_three_rest_candidates_leave_legs_that_touch_in_the_visible_frame() -> None:
     """Two legs touch in the middle frame and swing apart (a walking figure's legs passing):
     registered from the first candidate (the middle frame), the deformation graph glues them
-    and the frames where they part are explained clearly worse; the default
-    (``rest_frame = "fit"``, margin 5 %) registers from a frame with the legs apart instead, and
+    and the frames where they part are explained clearly worse; three candidates compared by fit
+    (``rest_candidates = 3``, margin 5 %) register from a frame with the legs apart instead, and
     its correspondences against the true material points are several times better
     (ground-truth oracle)."""
     frames, truth = scissor_legs(12, 30.0, gap=0.0)
     seq = PointSequence(frames)
-    cfg = RegistrationConfig(n_nodes=60)
+    cfg = RegistrationConfig(n_nodes=60, rest_candidates=3)
     assert cfg.rest_frame == "fit" and cfg.rest_fit_margin == 0.05
     visible = resolve_rest_frame(cfg, 12, frames)
     vis_cfg = dataclasses.replace(cfg, rest_frame=visible)
@@ -269,14 +269,14 @@ def test_default_rest_frame_leaves_legs_that_touch_in_the_visible_frame() -> Non
     assert err < 0.003 and err < 0.3 * err_vis, (err, err_vis)
 
 
-def test_default_rest_frame_keeps_the_first_candidate_within_the_margin() -> None:
+def test_three_rest_candidates_keep_the_first_candidate_within_the_margin() -> None:
     """The same legs 10 cm apart: every candidate explains the frames within the 5 % margin
-    of the first candidate, and the default's registration is exactly the one from that frame
+    of the first candidate, and the registration is exactly the one from that frame
     (the shorter chains win near-ties; the extra candidates cost time, not a different
     answer)."""
     frames, _ = scissor_legs(12, 30.0, gap=0.1)
     seq = PointSequence(frames)
-    cfg = RegistrationConfig(n_nodes=60)
+    cfg = RegistrationConfig(n_nodes=60, rest_candidates=3)
     res = register_sequence(seq, cfg)
     vis = register_sequence(seq, dataclasses.replace(
         cfg, rest_frame=resolve_rest_frame(cfg, 12, frames)))

@@ -193,7 +193,7 @@ class RegistrationConfig:
     rest_frame: int | str = "fit"
     # "fit" candidates: surface cover within this fraction of the middle half's largest
     rest_cover_tolerance: float = 0.03
-    rest_candidates: int = 3  # most "fit" candidates (1 = the most complete frame, no choice)
+    rest_candidates: int = 1  # most "fit" candidates (1 = the most complete frame, no choice)
     rest_fit_margin: float = 0.05  # fraction by which another candidate must fit better
     n_rest_points: int = 2000  # M, points of the rest-pose point set surface
     n_nodes: int = 200  # deformation-graph nodes n_j (Eq. 2), farthest-point sampled
