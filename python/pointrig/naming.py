@@ -16,12 +16,12 @@ rest position; so names are the same for the same rest skeleton, run after run.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
 from .errors import InputError
+from .jsonfile import read_json
 from .skeleton import Skeleton
 
 __all__ = ["apply_names", "read_name_mapping", "rename_joints", "tree_names"]
@@ -148,12 +148,8 @@ def read_name_mapping(path: str | Path) -> dict[str, str]:
         If the file is missing or not a JSON object of non-empty strings.
     """
     p = Path(path)
-    try:
-        mapping = json.loads(p.read_text())
-    except FileNotFoundError:
-        raise InputError("bone-name mapping not found", p) from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(f"bone-name mapping is not valid JSON: {exc}", p) from None
+    mapping = read_json(p, missing="bone-name mapping not found",
+                        invalid="bone-name mapping is not valid JSON")
     if not isinstance(mapping, dict) or not all(
             isinstance(k, str) and isinstance(v, str) and v.strip() for k, v in mapping.items()):
         raise InputError("bone-name mapping must be a JSON object of names to new names", p)

@@ -16,6 +16,7 @@ import numpy as np
 
 from .errors import InputError
 from .io.atomic import write_json, write_npz
+from .jsonfile import read_json
 
 __all__ = ["SKELETON_FORMAT", "Skeleton", "load_skeleton_json"]
 
@@ -143,15 +144,8 @@ def load_skeleton_json(path: str | Path) -> Skeleton:
     InputError
         If the file is missing, not JSON, or not a ``pointrig.skeleton/1`` document.
     """
-    import json
-
     p = Path(path)
-    try:
-        doc = json.loads(p.read_text())
-    except FileNotFoundError:
-        raise InputError("file not found", p) from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(f"not valid JSON: {exc}", p) from None
+    doc = read_json(p, missing="file not found", invalid="not valid JSON")
     if not isinstance(doc, dict) or doc.get("format") != SKELETON_FORMAT:
         raise InputError(f"not a {SKELETON_FORMAT} document (missing or wrong 'format')", p)
     try:

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ConfigError, EmptyFrameError, FormatError, InputError
+from ..jsonfile import read_json
 from ..sequence import MAX_COORD, PointSequence, SpilledFrames, check_frame
 from .depthcam import Isolation
 from .recordings import RECORDING_FORMATS, detect_recording, isolate_points, read_recording
@@ -395,12 +396,8 @@ def read_intrinsics(path: str | Path) -> dict[str, float]:
         Not JSON, or not a JSON object.
     """
     p = Path(path)
-    try:
-        doc = json.loads(p.read_text())
-    except FileNotFoundError:
-        raise InputError("intrinsics file not found", p) from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise FormatError(f"intrinsics is not valid JSON: {exc}", p) from None
+    doc = read_json(p, missing="intrinsics file not found", invalid="intrinsics is not valid JSON",
+                    error=FormatError)
     if not isinstance(doc, dict):
         raise FormatError("intrinsics must be a JSON object", p)
     if "intrinsic_matrix" in doc and "fx" not in doc:
