@@ -161,6 +161,38 @@ def test_jobs_2_gives_the_serial_results(serial, inputs, tmp_path):
     assert all(env[k] == str(threads) for k in THREAD_ENV)
 
 
+def test_reading_options_apply_to_every_recording_as_for_extract(inputs, tmp_path):
+    """``--far``, ``--crop`` and ``--skip-bad-frames`` reach each recording: a depth capture
+    (a wall behind an arm) with a damaged frame gives, through batch, the outputs extract
+    gives with the same options, bit for bit; without ``--skip-bad-frames`` it fails."""
+    from benchmarks.bench_memory import FAR_M, write_depth_sequence
+
+    folder = write_depth_sequence(tmp_path / "capture", 5)
+    (folder / "frame_00002.png").write_bytes(b"not a png")
+    opts = ["--far", str(FAR_M), "--crop", "40,0,600,480", "--skip-bad-frames",
+            "--config", str(inputs["config"]), "--no-pictures", "-q"]
+    code, _, stderr = _run(["extract", str(folder), "-o", str(tmp_path / "ref"), *opts])
+    assert code == 0, stderr
+    code, _, stderr = _run(["batch", str(folder), "-o", str(tmp_path / "out"), *opts,
+                            "--report", "off"])
+    assert code == 0, stderr
+    got, want = _results(tmp_path / "out" / "capture"), _results(tmp_path / "ref")
+    for key in want:
+        assert np.array_equal(got[key], want[key]), key
+    doc = json.loads((tmp_path / "out" / "capture" / "skeleton.json").read_text())
+    src = doc["source"]
+    assert src["frame_indices"] == [0, 1, 3, 4] and src["frames"] == 4
+    assert [(k["frame"], k["file"]) for k in src["skipped_frames"]] == [(2, "frame_00002.png")]
+    assert int(_summary(tmp_path / "out")["capture"]["frames"]) == 4
+    # every kept point lies nearer than --far
+    with np.load(tmp_path / "out" / "capture" / "weights.npz") as z:
+        assert z["rest_points"][:, 2].max() < FAR_M
+    code, _, _ = _run(["batch", str(folder), "-o", str(tmp_path / "strict"),
+                       *[o for o in opts if o != "--skip-bad-frames"]])
+    assert code == 1
+    assert "frame_00002.png" in _summary(tmp_path / "strict")["capture"]["failure"]
+
+
 def test_a_dask_cluster_gives_the_serial_results(serial, inputs, tmp_path):
     from distributed import LocalCluster
 

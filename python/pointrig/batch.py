@@ -70,6 +70,9 @@ class BatchOptions:
     scale: float = 1.0  #: multiply coordinates to get metres
     intrinsics: str | None = None  #: camera intrinsics JSON for depth PNGs
     topic: str | None = None  #: ROS bags: the topic to read
+    #: depth range and pixel box kept of depth images (``pointrig.io.depthcam.Isolation``)
+    isolation: Any = None
+    skip_bad_frames: bool = False  #: leave out unreadable frame files, with a warning
 
 
 @dataclass(frozen=True)
@@ -199,6 +202,8 @@ def run_job(job: Job) -> BatchRow:
         with OutputDir(job.output) as od:
             seq = read_recording(job.input, config, scale=opts.scale,
                                  intrinsics=opts.intrinsics, topic=opts.topic,
+                                 isolation=opts.isolation,
+                                 skip_bad_frames=opts.skip_bad_frames,
                                  spill=od.staged(FRAMES))
             res = extract(seq, config, od, resume=opts.resume, pictures=opts.pictures)
         row.frames = res.skeleton.n_frames if res.skeleton is not None else len(seq)

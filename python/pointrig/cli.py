@@ -47,6 +47,12 @@ def _add_input_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("input", help="a recording (Azure Kinect/Orbbec .mkv, RealSense .bag, ROS 2 "
                    "bag, Record3D .r3d, Stray Scanner folder), a folder of frames "
                    "(ply/pcd/xyz/txt/npy/depth png) or an .npz (docs/inputs.md)")
+    _add_reading_options(p)
+
+
+def _add_reading_options(p: argparse.ArgumentParser) -> None:
+    """How a recording is read (frames, depth range, crops, units, camera): extract, info,
+    preview and batch (where they apply to every recording)."""
     p.add_argument("--topic", default=None,
                    help="ROS bags: the depth image or PointCloud2 topic to read")
     p.add_argument("--near", type=float, default=None, metavar="M",
@@ -264,7 +270,8 @@ def cmd_batch(args: argparse.Namespace) -> int:
                           "set how many recordings run at once)")
     opts = BatchOptions(config=_config_from_args(args), pictures=not args.no_pictures,
                         resume=args.resume, scale=args.scale, intrinsics=args.intrinsics,
-                        topic=args.topic)
+                        topic=args.topic, isolation=_isolation(args),
+                        skip_bad_frames=args.skip_bad_frames)
     n = len(args.inputs)
     count = [0]
 
@@ -484,13 +491,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-pictures", action="store_true", help="skip skeleton.png/.gif")
     p.add_argument("--report", choices=("auto", "on", "off"), default=None,
                    help="report.html per recording (as for extract); overrides [rig] report")
-    p.add_argument("--scale", type=float, default=1.0,
-                   help="multiply coordinates to get metres (0.001 for millimetres)")
-    p.add_argument("--intrinsics", default=None, help="as for extract")
-    p.add_argument("--topic", default=None, help="ROS bags: the topic to read")
+    _add_reading_options(p)
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
-    p.set_defaults(func=cmd_batch, crop_min=None, crop_max=None, voxel=0.0, start=0, stop=None,
-                   stride=1)
+    p.set_defaults(func=cmd_batch)
 
     p = sub.add_parser("demo", help="run the pipeline on the bundled demo sequence")
     p.add_argument("-o", "--output", default="pointrig-demo",
