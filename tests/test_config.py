@@ -133,12 +133,6 @@ BAD = [
     (StructureConfig, "root_choice", "center"),
     (StructureConfig, "leaf_root", "middle"),
     (StructureConfig, "centre_tolerance", 1.0),
-    (StructureConfig, "leaf_split_angle_deg", 200.0),
-    (StructureConfig, "leaf_split_min_fraction", 0.6),
-    (StructureConfig, "leaf_split_min_length", -0.03),
-    (StructureConfig, "leaf_split_min_points", -1),
-    (StructureConfig, "leaf_split_max_ratio", -0.5),
-    (StructureConfig, "split_disconnected", 100.0),
     (StructureConfig, "joint_penalty", -1.0),
     (StructureConfig, "joint_frames", 0),
     (StructureConfig, "view_depth_quantile", 0.5),
@@ -221,8 +215,7 @@ def test_off_values_and_open_ends_are_accepted():
                        normal_kappa=0.0, mls_neighbors=0, refine_rounds=0, sigma2_anneal=1.0,
                        predict_check=0.0, workers=1)
     StructureConfig(neighbor_stretch=0.0, vote_guard_ratio=0.0, band_ratio=0.0,
-                    invisible_bone_fraction=0.0, leaf_split_angle_deg=0.0,
-                    split_disconnected=0.0, view_depth_quantile=0.0, max_joints=3)
+                    invisible_bone_fraction=0.0, view_depth_quantile=0.0, max_joints=3)
     StructureConfig(view_depth_quantile=1.0, root_end_alignment=0.0)
     JointsConfig(max_iterations=0, alpha_init=0.0, zeta=0.0, joint_tolerance=0.0,
                  rotation_smoothing=0.0, estep_max_points=0, track_anneal=1.0)
@@ -245,8 +238,8 @@ def test_paper_presets_hold_table1_and_the_papers_method():
     assert st.edge_weight == "eq15" and st.root_choice == "centroid"
     assert st.ensemble_seeds == 1 and st.merge_rule == "angle" and st.single_view == "no"
     assert st.cluster_rounds == 10 and st.eta == 1.0 and st.root_end_alignment == 0.0
-    assert (st.vote_guard_ratio, st.neighbor_stretch, st.band_ratio, st.invisible_bone_fraction,
-            st.leaf_split_angle_deg, st.split_disconnected) == (0.0,) * 6
+    assert (st.vote_guard_ratio, st.neighbor_stretch, st.band_ratio,
+            st.invisible_bone_fraction) == (0.0,) * 4
     assert st.leaf_root == "keep" and st.joint_penalty == 0.0
     # §6, Algorithm 2, Table 1, §7.2
     assert (jt.omega, jt.eta, jt.zeta, jt.gamma, jt.tau_init) == (0.01, 1.0, 1e4, 0.1, 6e-4)

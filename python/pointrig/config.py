@@ -403,16 +403,6 @@ class StructureConfig:
     leaf_root: str = "centre"
     # that centre: the rest points within this x size of the least eccentricity (0 = one point)
     centre_tolerance: float = 0.04
-    # output: a joint where a leaf bone bends at least this many degrees and its pieces move
-    # apart (pointrig.output.split_bent_leaves; 0 = off); the other leaf_split_* its limits
-    leaf_split_angle_deg: float = 30.0
-    leaf_split_min_fraction: float = 0.1  # shorter segment, fraction of the polyline
-    leaf_split_min_length: float = 0.03  # distal segment, x size
-    leaf_split_min_points: int = 12  # rest points of the leaf
-    leaf_split_max_ratio: float = 0.5  # two pieces' fit residual over one fit's
-    # output: one bone per piece of a bone with children whose pieces lie this x the rest
-    # spacing apart (pointrig.output.split_disconnected_bones; 0 = off)
-    split_disconnected: float = 3.0
     # output, first: a joint stays only where the raw frames need it, by the Bayesian
     # information criterion on the observed points (pointrig.selection.select_joints): the
     # multiplier of its penalty (1 = BIC, 0 = keep every joint) and the frames it scores
@@ -468,12 +458,6 @@ class StructureConfig:
         c.choice("root_choice", ("largest", "centroid"))
         c.choice("leaf_root", ("centre", "keep"))
         c.real("centre_tolerance", "[0, 1)")
-        c.real("leaf_split_angle_deg", "[0, 180]")
-        c.real("leaf_split_min_fraction", "[0, 0.5]")
-        c.real("leaf_split_min_length", "[0, inf)")
-        c.int("leaf_split_min_points", 0)
-        c.real("leaf_split_max_ratio", "[0, inf)")
-        c.real("split_disconnected", "[0, 100)")
         c.real("joint_penalty", "[0, inf)")
         c.int("joint_frames", 1)
         c.real("view_depth_quantile", "(0.5, 1]", off=True)
@@ -500,8 +484,6 @@ class StructureConfig:
             "root_end_alignment": 0.0,
             "root_choice": "centroid",
             "leaf_root": "keep",
-            "leaf_split_angle_deg": 0.0,
-            "split_disconnected": 0.0,
             "joint_penalty": 0.0,
             "single_view": "no",
         }
