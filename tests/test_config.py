@@ -241,6 +241,7 @@ def test_paper_presets_hold_table1_and_the_papers_method():
     assert (st.vote_guard_ratio, st.neighbor_stretch, st.band_ratio,
             st.invisible_bone_fraction) == (0.0,) * 4
     assert st.leaf_root == "keep" and st.joint_penalty == 0.0
+    assert st.leaf_min_fraction == 0.01 and StructureConfig().leaf_min_fraction == 0.0
     # §6, Algorithm 2, Table 1, §7.2
     assert (jt.omega, jt.eta, jt.zeta, jt.gamma, jt.tau_init) == (0.01, 1.0, 1e4, 0.1, 6e-4)
     assert jt.mode == "paper" and jt.init == "structure" and jt.alpha_init is None

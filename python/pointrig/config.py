@@ -379,7 +379,9 @@ class StructureConfig:
     # that noise's variance x n^noise_corr_exponent, n = the bone's points (0 = independent)
     noise_corr_exponent: float = 0.5
     min_cluster_fraction: float = 0.005  # clusters below this x M points are absorbed
-    leaf_min_fraction: float = 0.01  # a leaf at a branching parent below this x M is pruned
+    # a leaf at a branching parent below this x M is pruned (§5.4's first rule; 0 = off: the
+    # joint selection on the raw frames decides instead)
+    leaf_min_fraction: float = 0.0
     # a bone that a per-point blend of two neighbours' motions fits within this x its own
     # rigid fit's residual variance is a skinning band, not a bone (0 = off)
     band_ratio: float = 1.5
@@ -479,6 +481,7 @@ class StructureConfig:
             "edge_weight": "eq15",
             "merge_rule": "angle",
             "noise_margin": 0.0,
+            "leaf_min_fraction": 0.01,
             "band_ratio": 0.0,
             "invisible_bone_fraction": 0.0,
             "root_end_alignment": 0.0,
