@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_helpers import run_cli
 
 from pointrig.cli import main
 from pointrig.errors import InputError
@@ -215,10 +216,8 @@ def run_case(case: Case, tmp: Path) -> tuple[int, str, str, bool]:
     argv = case.build(tmp)
     argv = argv[:2] + ["-o", str(out), "-q", "--no-pictures"] + argv[2:] \
         if argv[0] == "extract" else argv
-    so, se = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(so), contextlib.redirect_stderr(se):
-        code = main(argv)
-    return code, so.getvalue(), se.getvalue(), _snapshot(out) == before
+    code, stdout, stderr = run_cli(argv)
+    return code, stdout, stderr, _snapshot(out) == before
 
 
 @pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_helpers import run_cli as _run
 
 from pointrig import PointrigError, read_sequence
 from pointrig.batch import THREAD_ENV, _thread_env, run_batch
@@ -40,13 +41,6 @@ usd = "off"
 """
 FRAMES = 6
 GOOD = ("take_a", "take_b")
-
-
-def _run(argv: list[str]) -> tuple[int, str, str]:
-    so, se = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(so), contextlib.redirect_stderr(se):
-        code = main(argv)
-    return code, so.getvalue(), se.getvalue()
 
 
 @pytest.fixture(scope="module")

@@ -9,10 +9,8 @@ recomputed here with hashlib).
 
 from __future__ import annotations
 
-import contextlib
 import errno
 import hashlib
-import io
 import json
 import logging
 import os
@@ -24,8 +22,8 @@ import time
 from pathlib import Path
 
 import pytest
+from cli_helpers import run_cli as _run
 
-from pointrig.cli import main
 from pointrig.errors import OutputError
 from pointrig.io.outdir import FAULT_ENV, MANIFEST, STAGING, OutputDir, read_manifest
 from pointrig.synth import NoiseConfig, synthesize
@@ -37,13 +35,6 @@ def seq_dir(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("arm")
     seq = synthesize("arm", n_frames=4, seed=1, noise=NoiseConfig.clean())
     return seq.write(root / "arm") / "frames"
-
-
-def _run(argv: list[str]) -> tuple[int, str, str]:
-    so, se = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(so), contextlib.redirect_stderr(se):
-        code = main(argv)
-    return code, so.getvalue(), se.getvalue()
 
 
 @pytest.fixture(scope="module")
