@@ -30,7 +30,6 @@ ratio::
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import tempfile
 import time
 from collections.abc import Iterator
@@ -120,10 +119,7 @@ def serial() -> Iterator[None]:
 
 def serial_config(cfg: PipelineConfig) -> PipelineConfig:
     """``cfg`` with one worker in every stage that has a pool."""
-    return dataclasses.replace(
-        cfg, registration=dataclasses.replace(cfg.registration, workers=1),
-        structure=dataclasses.replace(cfg.structure, workers=1),
-        joints=dataclasses.replace(cfg.joints, workers=1))
+    return cfg.with_workers(1)
 
 
 def timed(seq: PointSequence, cfg: PipelineConfig) -> tuple[dict[str, float], np.ndarray]:

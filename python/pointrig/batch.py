@@ -26,7 +26,6 @@ whatever its thread counts.
 from __future__ import annotations
 
 import csv
-import dataclasses
 import logging
 import os
 import pickle
@@ -176,17 +175,6 @@ def read_recording(path: str | Path, config: PipelineConfig, *, scale: float = 1
     return seq
 
 
-def _with_workers(config: PipelineConfig, threads: int) -> PipelineConfig:
-    """``config`` with every stage's ``workers`` set to ``threads`` (0: unchanged)."""
-    if threads <= 0:
-        return config
-    return dataclasses.replace(
-        config,
-        registration=dataclasses.replace(config.registration, workers=threads),
-        structure=dataclasses.replace(config.structure, workers=threads),
-        joints=dataclasses.replace(config.joints, workers=threads))
-
-
 def run_job(job: Job) -> BatchRow:
     """Run one recording in this process and return its row; never raises for a failed
     recording (its one-line error goes to :attr:`BatchRow.failure`)."""
@@ -196,7 +184,7 @@ def run_job(job: Job) -> BatchRow:
     opts = job.options
     t0 = time.perf_counter()
     try:
-        config = _with_workers(opts.config, job.threads)
+        config = opts.config.with_workers(job.threads)
         # the output folder checked and locked before the input is read; the frames wait on
         # disk in its staging folder, as for extract
         with OutputDir(job.output) as od:

@@ -674,6 +674,17 @@ class PipelineConfig:
     joints: JointsConfig = field(default_factory=JointsConfig)
     rig: RigConfig = field(default_factory=RigConfig)
 
+    def with_workers(self, threads: int) -> PipelineConfig:
+        """This config with every stage's thread pool (``workers``) set to ``threads``
+        (0: unchanged). Results do not depend on it."""
+        if threads <= 0:
+            return self
+        return dataclasses.replace(
+            self,
+            registration=dataclasses.replace(self.registration, workers=threads),
+            structure=dataclasses.replace(self.structure, workers=threads),
+            joints=dataclasses.replace(self.joints, workers=threads))
+
     def to_dict(self) -> dict[str, dict[str, Any]]:
         """Every parameter, by stage, as plain JSON-able values."""
         return dataclasses.asdict(self)
