@@ -235,6 +235,27 @@ class _NormalsMemo:
             while self.nbytes > self.budget:
                 self.nbytes -= self.store.popitem(last=False)[1].nbytes
 
+    def keep(self, radius: float) -> None:
+        """Drop the normals of every radius but ``radius``."""
+        with self.lock:
+            for key in [k for k in self.store if k[2] != radius]:
+                self.nbytes -= self.store.pop(key).nbytes
+
+    def enter(self, max_bytes: int) -> None:
+        """A :func:`reuse_normals` block opens: the largest budget of those open applies."""
+        with self.lock:
+            self.depth += 1
+            self.budget = max(self.budget, max_bytes)
+
+    def leave(self) -> None:
+        """A block ends; the outermost one releases every kept normal."""
+        with self.lock:
+            self.depth -= 1
+            if self.depth == 0:
+                self.store.clear()
+                self.nbytes = 0
+                self.budget = 0
+
 
 _NORMALS = _NormalsMemo()
 
@@ -242,9 +263,7 @@ _NORMALS = _NormalsMemo()
 def keep_normals(radius: float) -> None:
     """Drop the kept normals (:func:`reuse_normals`) of every radius but ``radius`` (metres):
     those of the rest-frame candidates that were not chosen."""
-    with _NORMALS.lock:
-        for key in [k for k in _NORMALS.store if k[2] != float(radius)]:
-            _NORMALS.nbytes -= _NORMALS.store.pop(key).nbytes
+    _NORMALS.keep(float(radius))
 
 
 @contextmanager
@@ -255,18 +274,11 @@ def reuse_normals(max_bytes: int = 256 << 20) -> Iterator[None]:
     two rounds of step 3). At most ``max_bytes`` of normals are kept (the oldest dropped
     first; the largest budget of the blocks open at once applies); they are released when the
     outermost block ends."""
-    with _NORMALS.lock:
-        _NORMALS.depth += 1
-        _NORMALS.budget = max(_NORMALS.budget, int(max_bytes))
+    _NORMALS.enter(int(max_bytes))
     try:
         yield
     finally:
-        with _NORMALS.lock:
-            _NORMALS.depth -= 1
-            if _NORMALS.depth == 0:
-                _NORMALS.store.clear()
-                _NORMALS.nbytes = 0
-                _NORMALS.budget = 0
+        _NORMALS.leave()
 
 
 def farthest_point_sampling(points: np.ndarray, n: int, seed: int = 0) -> np.ndarray:
