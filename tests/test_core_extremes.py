@@ -66,6 +66,9 @@ def _calls(pts: Callable[[np.ndarray], np.ndarray]) -> dict[str, Callable[[], ob
             v, v, offsets, np.array([1e-3, 1e-3]), 0.1, 3.0),
         "lbs_joint_normal_sums": lambda: _core.lbs_joint_normal_sums(
             np.ones((M, 2)), a, z),
+        "lbs_track_frame": lambda: _core.lbs_track_frame(
+            q, labels, parent, joints, v, np.ascontiguousarray(eye[0].reshape(B, 9)),
+            (0.0, 0.0, 0.0), 3, 1e-4, 1e-2, 1e-8, 0.5, 0.01, 3.5, 0.1, 1.0),
         "gmm_estep": lambda: _core.gmm_estep(q, q, 1e-3, 0.1, 3.0),
         "gmm_estep_dense": lambda: _core.gmm_estep(q, q, 1e-3, 0.1),
         "surface_normals": lambda: _core.surface_normals(q, q, 0.05),

@@ -509,6 +509,106 @@ def test_tracking_holds_the_pose_after_a_jump():
     assert err[1.0].max() < 0.035, err[1.0]
 
 
+def _track_frame_numpy(Q, labels, parent, joints, v, R, t_root, cfg, tau0, tau_max, floor,
+                       normals=None):
+    """The tracker's per-frame EM written with numpy around the E-step and sweep kernels (the
+    reference of ``_core.lbs_track_frame``): scipy's k-d tree for the starting ``tau``, the
+    chain translations and root shift in numpy."""
+    from scipy.spatial import cKDTree
+
+    from pointrig.joints import e_step
+
+    M, B = len(Q), len(parent)
+    order = [int(k) for k in np.argsort([_depth(parent, k) for k in range(B)], kind="stable")]
+    idx, w = np.ascontiguousarray(labels[:, None]), np.ones((M, 1))
+
+    def pose(Rt, shift, a=None, z=None):
+        T0 = np.zeros((B, 3))
+        for k in order:
+            if parent[k] >= 0:
+                T0[k] = T0[parent[k]] + (Rt[parent[k]] - Rt[k]) @ joints[k]
+        X0 = np.einsum("mij,mj->mi", Rt[labels], Q) + T0[labels]
+        if a is not None and a.sum() > 0:
+            shift = (a[:, None] * (z - X0)).sum(0) / a.sum()
+        return T0 + shift, X0 + shift
+
+    root = int(np.flatnonzero(parent < 0)[0])
+    T, X = pose(R, np.asarray(t_root))
+    tau = float(np.clip(4 / 3 * np.mean(cKDTree(v).query(X)[0] ** 2), tau0, tau_max))
+    an = cfg.track_anneal
+    k_coarse = int(np.ceil(np.log(tau / tau0) / np.log(1 / an))) if tau > tau0 else 0
+    for it in range(cfg.track_iterations):
+        nrm = None
+        if normals is not None:
+            nrm = (np.einsum("mab,mb->ma", R[labels], normals[0])[None], normals[1],
+                   cfg.track_normal_kappa)
+        es = e_step([v], X[None], np.array([tau]), cfg.omega, cfg.estep_radius_sigmas, True,
+                    normals=nrm)
+        a = es.P1[0] / tau * (M / len(v))
+        z = np.where((a > 0)[:, None], es.PX[0] / np.maximum(es.P1[0], 1e-300)[:, None], X)
+        Rf, Tf = _flat(R[None], T[None])
+        Rn, _ = _core.lbs_sweep_articulated(Q, idx, w, Rf, Tf, np.ascontiguousarray(a[None]),
+                                            np.ascontiguousarray(z), Rf, parent, joints,
+                                            cfg.gamma, 1)
+        R = Rn.reshape(B, 3, 3)
+        T, X = pose(R, T[root], a, z)
+        ss = float(es.sxx[0] - 2 * np.sum(es.PX[0] * X) + np.sum(es.P1[0][:, None] * X * X))
+        eq12 = max(ss / (3 * float(es.Np[0])), floor)
+        tau = min(eq12, max(an * tau, tau0)) if it < k_coarse else eq12
+    return R, T, X
+
+
+def _depth(parent, k):
+    d = 0
+    while parent[k] >= 0:
+        k, d = parent[k], d + 1
+    return d
+
+
+@pytest.mark.parametrize("with_normals", [False, True])
+def test_track_frame_matches_the_numpy_loop(with_normals):
+    """``_core.lbs_track_frame`` (one frame of the tracker in Rust) against the same EM written
+    in numpy around the E-step and sweep kernels, from a start 10 degrees off on every bone."""
+    from scipy.spatial.transform import Rotation
+
+    from pointrig.geometry import estimate_normals
+
+    fig = make_figure("human", n_frames=6, n_points=1200, n_obs=3000, seed=4)
+    st = step2_standin(fig)
+    cfg = JointsConfig()
+    rng = np.random.default_rng(1)
+    R0 = np.einsum("bij,bjk->bik", Rotation.from_rotvec(
+        rng.normal(size=(len(st.bone_parent), 3)) * np.radians(10) / np.sqrt(3)).as_matrix(),
+        st.R[5])
+    v = np.ascontiguousarray(fig.frames[5], dtype=float)
+    Q, labels = np.ascontiguousarray(fig.rest_points), st.labels.astype(np.int64)
+    parent, joints = st.bone_parent.astype(np.int64), np.ascontiguousarray(st.joints_rest)
+    tau0, tau_max, floor = 6e-4, 0.01, 1e-6
+    normals = None
+    extra = ()
+    if with_normals:
+        vn = np.ascontiguousarray(estimate_normals(v, 0.03))
+        normals = (np.ascontiguousarray(fig.normals), vn)
+        extra = (normals[0], vn, cfg.track_normal_kappa)
+    want = _track_frame_numpy(Q, labels, parent, joints, v, R0, st.T[5, st.root], cfg, tau0,
+                              tau_max, floor, normals)
+    got = _core.lbs_track_frame(
+        Q, labels, parent, joints, v, np.ascontiguousarray(R0.reshape(-1, 9)),
+        tuple(st.T[5, st.root]), cfg.track_iterations, tau0, tau_max, floor, cfg.track_anneal,
+        cfg.omega, cfg.estep_radius_sigmas, cfg.gamma, len(Q) / len(v), *extra)
+    # the E-step's float32 distances turn last-bit differences of the rotated normals (numpy's
+    # einsum against Rust's sum) into ~1e-7 ones
+    np.testing.assert_allclose(got[0].reshape(-1, 3, 3), want[0], atol=1e-6)
+    np.testing.assert_allclose(got[1], want[1], atol=1e-6)
+    np.testing.assert_allclose(got[2], want[2], atol=1e-6)
+    # the fit moved: the start is 10 degrees off on every bone
+    assert np.abs(got[0].reshape(-1, 3, 3) - R0).max() > 0.01
+    with pytest.raises(InputError):
+        _core.lbs_track_frame(Q, labels + 100, parent, joints, v,
+                              np.ascontiguousarray(R0.reshape(-1, 9)), (0.0, 0.0, 0.0), 3,
+                              tau0, tau_max, floor, 0.5, 0.01, 3.5, 0.1, 1.0)
+
+
 def test_tracking_config_errors():
     fig = make_figure("arm", n_frames=3, n_points=200, n_obs=300)
     st = step2_standin(fig)

@@ -104,6 +104,25 @@ def lbs_joint_normal_sums(
     """Per-frame sums of the articulated joint solve with ``ws (M, E)``, ``a (F, M)``,
     ``r (F*M, 3)``: ``S0 (F,) = sum a``, ``d0 (F, 3) = sum a r``, ``S1 (F, E) = a @ ws``,
     ``S2 (F, E*E) = sum a ws_e ws_g``, ``d1 (F, E*3) = sum a ws_e r``."""
+def lbs_track_frame(
+    q: npt.NDArray[np.float64], labels: npt.NDArray[np.int64],
+    bone_parent: npt.NDArray[np.int64], joints: npt.NDArray[np.float64],
+    v: npt.NDArray[np.float64], r: npt.NDArray[np.float64], t_root: tuple[float, float, float],
+    iterations: int, tau0: float, tau_max: float, floor: float, anneal: float, omega: float,
+    cutoff: float | None, gamma: float, density: float,
+    rest_normals: npt.NDArray[np.float64] | None = None,
+    v_normals: npt.NDArray[np.float64] | None = None, kappa: float = 0.0,
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """One frame of step 3's tracker (``rust/core/track.rs``): the rest points ``q (M, 3)``
+    moving rigidly with their bones ``labels (M,)``, bones meeting at the rest ``joints
+    (B, 3)``, fitted to ``v (N, 3)`` from the rotations ``r (B, 9)`` and root translation
+    ``t_root`` by ``iterations`` EM steps (float32 E-step truncated at ``cutoff sqrt(tau)``,
+    joint-constrained sweep with ``gamma``, root shift; data weights ``P1 / tau * density``;
+    ``tau`` from 4/3 of the start's mean squared nearest distance clipped to ``[tau0,
+    tau_max]``, annealed by ``anneal`` to ``tau0``, then Eq. 12 floored at ``floor``, m^2).
+    ``rest_normals (M, 3)``, ``v_normals (N, 3)`` and ``kappa > 0`` weigh pairs by normal
+    agreement. Returns ``R (B, 9)``, ``T (B, 3)`` (``T_frame_rest``) and the posed points
+    ``(M, 3)``, metres."""
 def simplex_qp(h: npt.NDArray[np.float64], g: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """Exact argmin of ``0.5 w'Hw - g'w`` s.t. ``w >= 0, sum w = 1`` (k <= 8)."""
 def gmm_estep(

@@ -51,7 +51,6 @@ from .geometry import (
     chamfer_misfit,
     estimate_normals,
     mean_spacing,
-    nearest_distances,
 )
 from .kinematics import joint_trajectories, solve_joint_positions
 
@@ -458,14 +457,13 @@ def _predict_rigid(R1: np.ndarray, T1: np.ndarray, R0: np.ndarray, T0: np.ndarra
 
 
 def _fit_and_score(fit_frame: Callable[..., tuple[np.ndarray, np.ndarray, np.ndarray]],
-                   v: np.ndarray, packed: tuple[np.ndarray, np.ndarray],
-                   vn: np.ndarray | None, trunc: float | None,
+                   v: np.ndarray, vn: np.ndarray | None, trunc: float | None,
                    start: tuple[np.ndarray, np.ndarray]
                    ) -> tuple[float, np.ndarray, np.ndarray]:
     """One tracking hypothesis of a frame: ``fit_frame`` from ``start`` (``(B, 3, 3)``,
     ``(B, 3)``), and the fit's truncated chamfer misfit to the frame ``v`` ``(N, 3)`` (metres;
     0 when ``trunc`` is None: a single hypothesis needs no score). Returns ``(misfit, R, T)``."""
-    Rt, Tt, X = fit_frame(v, packed, start[0], start[1], vn)
+    Rt, Tt, X = fit_frame(v, start[0], start[1], vn)
     return (0.0 if trunc is None else chamfer_misfit(X, v, trunc)), Rt, Tt
 
 
@@ -546,39 +544,19 @@ def track_bones(
 
     use_normals = normals is not None and config.track_normal_kappa > 0
 
-    def fit_frame(v: np.ndarray, packed: tuple[np.ndarray, np.ndarray],
-                  Rt: np.ndarray, Tt: np.ndarray,
+    def fit_frame(v: np.ndarray, Rt: np.ndarray, Tt: np.ndarray,
                   vn: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        Tt, X = _fixed_joint_translations(Rt, Tt[root], joints, parent, skin)
-        d2 = nearest_distances(X, v) ** 2
-        tau = float(np.clip(4.0 / 3.0 * d2.mean(), tau0, tau_max))
-        anneal = config.track_anneal
-        k_coarse = (int(np.ceil(np.log(tau / tau0) / np.log(1.0 / anneal)))
-                    if tau > tau0 and 0 < anneal < 1 else 0)
-        for it in range(config.track_iterations):
-            nrm = None
-            if use_normals and vn is not None:
-                xn = np.einsum("mab,mb->ma", Rt[labels], normals[0])
-                nrm = (xn[None], vn, config.track_normal_kappa)
-            es = e_step([v], X[None], np.array([tau]), config.omega,
-                        config.estep_radius_sigmas, True, packed=packed, normals=nrm)
-            a = es.P1[0] / tau
-            if config.gmm_density_normalize:
-                a = a * (M / len(v))
-            if not float(a.sum()) > 0:
-                break
-            z = np.where((a > 0)[:, None], es.PX[0] / np.maximum(es.P1[0], 1e-300)[:, None], X)
-            Rf, Tf = _flat_rt(Rt[None], Tt[None])
-            Rn, _Tn = _core.lbs_sweep_articulated(
-                Q, idx, w, Rf, Tf, np.ascontiguousarray(a[None]), np.ascontiguousarray(z),
-                Rf, parent, joints, config.gamma, 1)
-            Rt = Rn.reshape(B, 3, 3)
-            Tt, X = _fixed_joint_translations(Rt, Tt[root], joints, parent, skin, a, z)
-            # Eq. 12 form with this E-step's statistics at the new points
-            ss = float(es.sxx[0] - 2.0 * np.sum(es.PX[0] * X) + np.sum(es.P1[0][:, None] * X * X))
-            eq12 = max(ss / (3.0 * max(float(es.Np[0]), 1e-12)), floor)
-            tau = min(eq12, max(anneal * tau, tau0)) if it < k_coarse else eq12
-        return Rt, Tt, X
+        # one frame's EM in Rust (rust/core/track.rs; the GIL is released, so a frame's two
+        # hypotheses run side by side)
+        nrm = (normals[0], vn, config.track_normal_kappa) if use_normals and vn is not None \
+            else (None, None, 0.0)
+        Rn, Tn, X = _core.lbs_track_frame(
+            Q, labels, parent, joints, np.ascontiguousarray(v, dtype=float),
+            np.ascontiguousarray(Rt.reshape(B, 9)),
+            tuple(float(c) for c in Tt[root]), config.track_iterations, tau0, tau_max, floor,
+            config.track_anneal, config.omega, config.estep_radius_sigmas, config.gamma,
+            M / len(v) if config.gmm_density_normalize else 1.0, *nrm)
+        return Rn.reshape(B, 3, 3), Tn, X
 
     # symmetric chamfer, each distance truncated at 3 sqrt(tau_max): how well a pose explains
     # the frame (template on data, and no data left without template)
@@ -622,10 +600,9 @@ def track_bones(
                 if chamfer_misfit(Xh, v, trunc) < \
                         config.track_predict_check * chamfer_misfit(Xp, v, trunc):
                     starts[0] = (Rh.copy(), Th.copy())
-            packed = pack_frames([v])
-            vn = normals[1][t] if use_normals else None
+            vn = np.ascontiguousarray(normals[1][t], dtype=float) if use_normals else None
 
-            fit = partial(_fit_and_score, fit_frame, v, packed, vn,
+            fit = partial(_fit_and_score, fit_frame, v, vn,
                           trunc if len(starts) > 1 else None)
             fits = list(pool.map(fit, starts))
             best = min(fits, key=lambda f: f[0])  # the first on a tie

@@ -10,5 +10,6 @@ pub mod lbs;
 pub mod nearest;
 pub mod neighbors;
 pub mod qp;
+pub mod track;
 
 pub use error::{CoreError, CoreResult};

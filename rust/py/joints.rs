@@ -15,6 +15,7 @@ use super::CSlice;
 use super::{flat1, flat2, input_err, points, to_array2, to_pyerr};
 use crate::core::lbs::{self, Dims, SparseWeights};
 use crate::core::qp;
+use crate::core::track;
 
 fn indices(arr: &PyReadonlyArray2<'_, i64>, name: &str) -> PyResult<(Vec<usize>, usize)> {
     let cols = arr.shape()[1];
@@ -410,6 +411,96 @@ fn simplex_qp<'py>(
     Ok(PyArray1::from_vec(py, w))
 }
 
+type TrackOut<'py> = (
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray2<f64>>,
+);
+
+/// One frame of step 3's tracker (see `_core.pyi`).
+#[pyfunction]
+#[pyo3(signature = (q, labels, bone_parent, joints, v, r, t_root, iterations, tau0, tau_max,
+                    floor, anneal, omega, cutoff, gamma, density, rest_normals=None,
+                    v_normals=None, kappa=0.0))]
+#[allow(clippy::too_many_arguments)]
+fn lbs_track_frame<'py>(
+    py: Python<'py>,
+    q: PyReadonlyArray2<'py, f64>,
+    labels: PyReadonlyArray1<'py, i64>,
+    bone_parent: PyReadonlyArray1<'py, i64>,
+    joints: PyReadonlyArray2<'py, f64>,
+    v: PyReadonlyArray2<'py, f64>,
+    r: PyReadonlyArray2<'py, f64>,
+    t_root: [f64; 3],
+    iterations: usize,
+    tau0: f64,
+    tau_max: f64,
+    floor: f64,
+    anneal: f64,
+    omega: f64,
+    cutoff: Option<f64>,
+    gamma: f64,
+    density: f64,
+    rest_normals: Option<PyReadonlyArray2<'py, f64>>,
+    v_normals: Option<PyReadonlyArray2<'py, f64>>,
+    kappa: f64,
+) -> PyResult<TrackOut<'py>> {
+    let qs = points(py, &q, "q")?;
+    let vs = points(py, &v, "v")?;
+    let js = points(py, &joints, "joints")?;
+    let rs = flat2(py, &r, "R", 9)?;
+    let parent = parents(&bone_parent)?;
+    let labels = labels
+        .c_slice("labels")?
+        .iter()
+        .map(|&l| usize::try_from(l).map_err(|_| input_err(format!("labels: negative {l}"))))
+        .collect::<PyResult<Vec<usize>>>()?;
+    let scalars = [tau0, tau_max, floor, anneal, omega, gamma, density, kappa];
+    if scalars.iter().any(|x| !x.is_finite())
+        || t_root.iter().any(|x| !x.is_finite())
+        || cutoff.is_some_and(|c| !c.is_finite())
+    {
+        return Err(input_err("lbs_track_frame: settings must be finite"));
+    }
+    if !(tau0 > 0.0 && tau_max > 0.0) {
+        return Err(input_err("lbs_track_frame: tau0 and tau_max must be > 0"));
+    }
+    let normals = match (&rest_normals, &v_normals) {
+        (Some(a), Some(b)) if kappa > 0.0 => Some((
+            points(py, a, "rest_normals")?,
+            points(py, b, "v_normals")?,
+            kappa,
+        )),
+        _ => None,
+    };
+    let model = track::TrackModel {
+        q: qs,
+        labels: &labels,
+        parent: &parent,
+        joints: js,
+        normals,
+    };
+    let settings = track::TrackSettings {
+        iterations,
+        tau0,
+        tau_max,
+        floor,
+        anneal,
+        omega,
+        cutoff,
+        gamma,
+        density,
+    };
+    let (rr, tt, xx) = py
+        .detach(|| track::track_frame(&model, vs, rs, t_root, &settings))
+        .map_err(|e| to_pyerr(py, e))?;
+    Ok((
+        to_array2(py, rr, 9)?,
+        to_array2(py, tt, 3)?,
+        to_array2(py, xx, 3)?,
+    ))
+}
+
 pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(lbs_skin, m)?)?;
     m.add_function(wrap_pyfunction!(lbs_fit_weights, m)?)?;
@@ -418,5 +509,6 @@ pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(simplex_qp, m)?)?;
     m.add_function(wrap_pyfunction!(lbs_estep_frames, m)?)?;
     m.add_function(wrap_pyfunction!(lbs_joint_normal_sums, m)?)?;
+    m.add_function(wrap_pyfunction!(lbs_track_frame, m)?)?;
     Ok(())
 }
