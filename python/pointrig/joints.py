@@ -381,9 +381,11 @@ def solve_joints_articulated(
     S0s = np.where(S0 > 0, S0, 1.0)
     K = S2 - S1[:, :, None] * S1[:, None, :] / S0s[:, None, None]
     A = R[:, parent[edges]] - R[:, edges]  # (F, E, 3, 3)
-    # (F, E, E, 3, 3) products first: plain einsums (no BLAS dispatch for these tiny blocks)
-    AA = np.einsum("teji,tgjk->tegik", A, A)
-    H = np.einsum("teg,tegik->eigk", K, AA).reshape(3 * E, 3 * E)
+    # H[(e, i), (g, k)] = sum_t K[t, e, g] (A_e^T A_g)[i, k]: the blocks of every frame as one
+    # batched product of the (3, 3E) matrices [A_1 ... A_E], weighted by K and summed
+    At = A.transpose(0, 2, 1, 3).reshape(F, 3, 3 * E)
+    H = np.einsum("tab,tab->ab", np.repeat(np.repeat(K, 3, axis=1), 3, axis=2),
+                  np.matmul(At.transpose(0, 2, 1), At))
     rhs_v = d1 - S1[:, :, None] * (d0 / S0s[:, None])[:, None, :]
     rhs = np.einsum("teji,tej->ei", A, rhs_v)
     lam = prior_weight * S2[:, np.arange(E), np.arange(E)].mean(0)  # (E,)
