@@ -557,7 +557,8 @@ def track_bones(
             np.ascontiguousarray(Rt.reshape(B, 9)),
             tuple(float(c) for c in Tt[root]), config.track_iterations, tau0, tau_max, floor,
             config.track_anneal, config.omega, config.estep_radius_sigmas, config.gamma,
-            M / len(v) if config.gmm_density_normalize else 1.0, *nrm)
+            M / len(v) if config.gmm_density_normalize else 1.0, *nrm,
+            sweeps=config.track_sweeps)
         return Rn.reshape(B, 3, 3), Tn, X
 
     # symmetric chamfer, each distance truncated at 3 sqrt(tau_max): how well a pose explains

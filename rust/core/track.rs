@@ -23,6 +23,8 @@ use crate::core::nearest::capped_nn_distances;
 pub struct TrackSettings {
     /// EM iterations.
     pub iterations: usize,
+    /// Articulated sweeps (each followed by the root shift) per E-step, at least 1.
+    pub sweeps: usize,
     /// Lower bound of the start and the annealing target of `tau`, m^2.
     pub tau0: f64,
     /// Upper bound of the start `tau`, m^2.
@@ -215,24 +217,26 @@ pub fn track_frame(
             }
         }
         let r_pre = r.clone();
-        // the sweep's translations are not used: the joints hold, and the root moves below
-        let root_t = [t[3 * root], t[3 * root + 1], t[3 * root + 2]];
-        let mut t_sweep = t.clone();
-        lbs::sweep_articulated(
-            model.q,
-            sw,
-            &mut r,
-            &mut t_sweep,
-            &a,
-            &z,
-            &r_pre,
-            model.parent,
-            model.joints,
-            s.gamma,
-            &[],
-            dims,
-        )?;
-        (t, x) = fixed_joint_pose(model, &r, &order, root_t, Some((&a, &z)))?;
+        for _ in 0..s.sweeps.max(1) {
+            // the sweep's translations are not used: the joints hold, and the root moves below
+            let root_t = [t[3 * root], t[3 * root + 1], t[3 * root + 2]];
+            let mut t_sweep = t.clone();
+            lbs::sweep_articulated(
+                model.q,
+                sw,
+                &mut r,
+                &mut t_sweep,
+                &a,
+                &z,
+                &r_pre,
+                model.parent,
+                model.joints,
+                s.gamma,
+                &[],
+                dims,
+            )?;
+            (t, x) = fixed_joint_pose(model, &r, &order, root_t, Some((&a, &z)))?;
+        }
         // the form of Eq. 12 with this E-step's statistics at the new points
         let mut ss = es.sum_x2[0];
         for mm in 0..m {
@@ -295,6 +299,7 @@ mod tests {
         };
         let s = TrackSettings {
             iterations: 10,
+            sweeps: 1,
             tau0: 1e-4,
             tau_max: 0.05,
             floor: 1e-8,

@@ -421,7 +421,7 @@ type TrackOut<'py> = (
 #[pyfunction]
 #[pyo3(signature = (q, labels, bone_parent, joints, v, r, t_root, iterations, tau0, tau_max,
                     floor, anneal, omega, cutoff, gamma, density, rest_normals=None,
-                    v_normals=None, kappa=0.0))]
+                    v_normals=None, kappa=0.0, sweeps=1))]
 #[allow(clippy::too_many_arguments)]
 fn lbs_track_frame<'py>(
     py: Python<'py>,
@@ -444,6 +444,7 @@ fn lbs_track_frame<'py>(
     rest_normals: Option<PyReadonlyArray2<'py, f64>>,
     v_normals: Option<PyReadonlyArray2<'py, f64>>,
     kappa: f64,
+    sweeps: usize,
 ) -> PyResult<TrackOut<'py>> {
     let qs = points(py, &q, "q")?;
     let vs = points(py, &v, "v")?;
@@ -482,6 +483,7 @@ fn lbs_track_frame<'py>(
     };
     let settings = track::TrackSettings {
         iterations,
+        sweeps,
         tau0,
         tau_max,
         floor,
