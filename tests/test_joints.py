@@ -546,12 +546,15 @@ def _track_frame_numpy(Q, labels, parent, joints, v, R, t_root, cfg, tau0, tau_m
                     normals=nrm)
         a = es.P1[0] / tau * (M / len(v))
         z = np.where((a > 0)[:, None], es.PX[0] / np.maximum(es.P1[0], 1e-300)[:, None], X)
-        Rf, Tf = _flat(R[None], T[None])
-        Rn, _ = _core.lbs_sweep_articulated(Q, idx, w, Rf, Tf, np.ascontiguousarray(a[None]),
-                                            np.ascontiguousarray(z), Rf, parent, joints,
-                                            cfg.gamma, 1)
-        R = Rn.reshape(B, 3, 3)
-        T, X = pose(R, T[root], a, z)
+        R_pre = _flat(R[None], T[None])[0]
+        for _ in range(cfg.track_sweeps):
+            Rf, Tf = _flat(R[None], T[None])
+            Rn, _ = _core.lbs_sweep_articulated(Q, idx, w, Rf, Tf,
+                                                np.ascontiguousarray(a[None]),
+                                                np.ascontiguousarray(z), R_pre, parent, joints,
+                                                cfg.gamma, 1)
+            R = Rn.reshape(B, 3, 3)
+            T, X = pose(R, T[root], a, z)
         ss = float(es.sxx[0] - 2 * np.sum(es.PX[0] * X) + np.sum(es.P1[0][:, None] * X * X))
         eq12 = max(ss / (3 * float(es.Np[0])), floor)
         tau = min(eq12, max(an * tau, tau0)) if it < k_coarse else eq12
@@ -565,8 +568,8 @@ def _depth(parent, k):
     return d
 
 
-@pytest.mark.parametrize("with_normals", [False, True])
-def test_track_frame_matches_the_numpy_loop(with_normals):
+@pytest.mark.parametrize("with_normals,sweeps", [(False, 1), (True, 1), (True, 3)])
+def test_track_frame_matches_the_numpy_loop(with_normals, sweeps):
     """``_core.lbs_track_frame`` (one frame of the tracker in Rust) against the same EM written
     in numpy around the E-step and sweep kernels, from a start 10 degrees off on every bone."""
     from scipy.spatial.transform import Rotation
@@ -575,7 +578,7 @@ def test_track_frame_matches_the_numpy_loop(with_normals):
 
     fig = make_figure("human", n_frames=6, n_points=1200, n_obs=3000, seed=4)
     st = step2_standin(fig)
-    cfg = JointsConfig()
+    cfg = JointsConfig(track_sweeps=sweeps)
     rng = np.random.default_rng(1)
     R0 = np.einsum("bij,bjk->bik", Rotation.from_rotvec(
         rng.normal(size=(len(st.bone_parent), 3)) * np.radians(10) / np.sqrt(3)).as_matrix(),
@@ -595,7 +598,8 @@ def test_track_frame_matches_the_numpy_loop(with_normals):
     got = _core.lbs_track_frame(
         Q, labels, parent, joints, v, np.ascontiguousarray(R0.reshape(-1, 9)),
         tuple(st.T[5, st.root]), cfg.track_iterations, tau0, tau_max, floor, cfg.track_anneal,
-        cfg.omega, cfg.estep_radius_sigmas, cfg.gamma, len(Q) / len(v), *extra)
+        cfg.omega, cfg.estep_radius_sigmas, cfg.gamma, len(Q) / len(v), *extra,
+        sweeps=cfg.track_sweeps)
     # the E-step's float32 distances turn last-bit differences of the rotated normals (numpy's
     # einsum against Rust's sum) into ~1e-7 ones
     np.testing.assert_allclose(got[0].reshape(-1, 3, 3), want[0], atol=1e-6)

@@ -546,7 +546,7 @@ class JointsConfig:
     # frames) | "structure" (step 2's bone motions, §6)
     init: str = "track"
     track_iterations: int = 10  # EM iterations per tracked frame
-    track_sweeps: int = 1  # articulated sweeps per E-step of the tracker
+    track_sweeps: int = 3  # articulated sweeps (each with the root shift) per tracker E-step
     track_velocity: float = 1.0  # constant-velocity prediction gain (0 = previous frame)
     track_tau_max: float = 0.01  # cap of a frame's starting tau, m^2 at 1.8 m (scaled)
     track_anneal: float = 0.5  # coarse-to-fine: tau at most this x the previous until tau_init
