@@ -485,8 +485,9 @@ def track_bones(
     registration's sliding along limbs and its lost fast limbs. Here the bones (step 2's
     labels as one-hot weights, step 2's joints held fixed) are fitted to the raw points of
     each frame in turn, outwards from the rest frame, each frame starting from the
-    constant-velocity prediction of its neighbours: EM with the posteriors of Eq. 4 (no
-    E_Register), joint-constrained bone rotations (the articulated sweep of Eqs. 23-26) and
+    constant-velocity prediction of its neighbours: EM (in Rust, ``_core.lbs_track_frame``)
+    with the posteriors of Eq. 4 (no E_Register), then ``track_sweeps`` rounds of
+    joint-constrained bone rotations (the articulated sweep of Eqs. 23-26) each followed by
     the root translation, ``tau`` from ``4/3`` of the mean squared nearest-point distance of
     the prediction (capped at ``track_tau_max``, m^2 at 1.8 m, scaled by size^2) annealed by
     ``track_anneal`` to ``tau_init``, then Eq. 12. Each frame is also fitted from step 2's own
@@ -545,15 +546,19 @@ def track_bones(
         return _core.lbs_skin(Q, idx, w, Rf, Tf, 1).reshape(M, 3)
 
     use_normals = normals is not None and config.track_normal_kappa > 0
+    # the native fit's inputs: C-contiguous float64 / int64
+    Qc, labels_c = np.ascontiguousarray(Q, dtype=float), np.ascontiguousarray(labels)
+    parent_c, joints_c = np.ascontiguousarray(parent), np.ascontiguousarray(joints)
+    rest_normals = np.ascontiguousarray(normals[0], dtype=float) if use_normals else None
 
     def fit_frame(v: np.ndarray, Rt: np.ndarray, Tt: np.ndarray,
                   vn: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         # one frame's EM in Rust (rust/core/track.rs; the GIL is released, so a frame's two
         # hypotheses run side by side)
-        nrm = (normals[0], vn, config.track_normal_kappa) if use_normals and vn is not None \
+        nrm = (rest_normals, vn, config.track_normal_kappa) if use_normals and vn is not None \
             else (None, None, 0.0)
         Rn, Tn, X = _core.lbs_track_frame(
-            Q, labels, parent, joints, np.ascontiguousarray(v, dtype=float),
+            Qc, labels_c, parent_c, joints_c, np.ascontiguousarray(v, dtype=float),
             np.ascontiguousarray(Rt.reshape(B, 9)),
             tuple(float(c) for c in Tt[root]), config.track_iterations, tau0, tau_max, floor,
             config.track_anneal, config.omega, config.estep_radius_sigmas, config.gamma,
