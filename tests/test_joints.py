@@ -516,10 +516,10 @@ def _track_frame_numpy(Q, labels, parent, joints, v, R, t_root, cfg, tau0, tau_m
     chain translations and root shift in numpy."""
     from scipy.spatial import cKDTree
 
-    from pointrig.joints import e_step
+    from pointrig.joints import _topo_order, e_step
 
     M, B = len(Q), len(parent)
-    order = [int(k) for k in np.argsort([_depth(parent, k) for k in range(B)], kind="stable")]
+    order = _topo_order(parent)
     idx, w = np.ascontiguousarray(labels[:, None]), np.ones((M, 1))
 
     def pose(Rt, shift, a=None, z=None):
@@ -559,13 +559,6 @@ def _track_frame_numpy(Q, labels, parent, joints, v, R, t_root, cfg, tau0, tau_m
         eq12 = max(ss / (3 * float(es.Np[0])), floor)
         tau = min(eq12, max(an * tau, tau0)) if it < k_coarse else eq12
     return R, T, X
-
-
-def _depth(parent, k):
-    d = 0
-    while parent[k] >= 0:
-        k, d = parent[k], d + 1
-    return d
 
 
 @pytest.mark.parametrize("with_normals,sweeps", [(False, 1), (True, 1), (True, 3)])

@@ -525,15 +525,16 @@ def track_bones(
     R, T
         ``(F, B, 3, 3)`` and ``(F, B, 3)``: ``T_frame_rest`` of every bone per frame, metres.
     """
-    Q = rest_points
+    # C-contiguous float64 / int64: the native calls' layout
+    Q = np.ascontiguousarray(rest_points, dtype=float)
     F, M = len(obs), Q.shape[0]
-    parent = np.asarray(structure.bone_parent, dtype=np.int64)
+    parent = np.ascontiguousarray(structure.bone_parent, dtype=np.int64)
     B = len(parent)
     root = int(np.flatnonzero(parent < 0)[0])
-    labels = np.asarray(structure.labels, dtype=np.int64)
+    labels = np.ascontiguousarray(structure.labels, dtype=np.int64)
     idx = np.ascontiguousarray(labels[:, None])
     w = np.ones((M, 1))
-    joints = np.asarray(structure.joints_rest, dtype=float)
+    joints = np.ascontiguousarray(structure.joints_rest, dtype=float)
     scale2 = _size_scale2(Q)
     tau0 = _tau_start(Q, config)
     tau_max = max(config.track_tau_max * scale2, tau0)
@@ -546,9 +547,6 @@ def track_bones(
         return _core.lbs_skin(Q, idx, w, Rf, Tf, 1).reshape(M, 3)
 
     use_normals = normals is not None and config.track_normal_kappa > 0
-    # the native fit's inputs: C-contiguous float64 / int64
-    Qc, labels_c = np.ascontiguousarray(Q, dtype=float), np.ascontiguousarray(labels)
-    parent_c, joints_c = np.ascontiguousarray(parent), np.ascontiguousarray(joints)
     rest_normals = np.ascontiguousarray(normals[0], dtype=float) if use_normals else None
 
     def fit_frame(v: np.ndarray, Rt: np.ndarray, Tt: np.ndarray,
@@ -558,7 +556,7 @@ def track_bones(
         nrm = (rest_normals, vn, config.track_normal_kappa) if use_normals and vn is not None \
             else (None, None, 0.0)
         Rn, Tn, X = _core.lbs_track_frame(
-            Qc, labels_c, parent_c, joints_c, np.ascontiguousarray(v, dtype=float),
+            Q, labels, parent, joints, np.ascontiguousarray(v, dtype=float),
             np.ascontiguousarray(Rt.reshape(B, 9)),
             tuple(float(c) for c in Tt[root]), config.track_iterations, tau0, tau_max, floor,
             config.track_anneal, config.omega, config.estep_radius_sigmas, config.gamma,

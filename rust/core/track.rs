@@ -85,6 +85,7 @@ fn chain_translations(r: &[f64], joints: &[f64], parent: &[i64], order: &[usize]
 /// targets `z (M*3)` of positive total weight, by `sum_m a_m (z_m - x0_m) / sum_m a_m`.
 fn fixed_joint_pose(
     model: &TrackModel<'_>,
+    sw: SparseWeights<'_>,
     r: &[f64],
     order: &[usize],
     shift: [f64; 3],
@@ -92,12 +93,6 @@ fn fixed_joint_pose(
 ) -> CoreResult<(Vec<f64>, Vec<f64>)> {
     let (m, b) = (model.labels.len(), model.parent.len());
     let mut t = chain_translations(r, model.joints, model.parent, order);
-    let w = vec![1.0; m];
-    let sw = SparseWeights {
-        idx: model.labels,
-        w: &w,
-        k: 1,
-    };
     let mut x = lbs::skin(model.q, sw, r, &t, Dims { f: 1, m, b })?;
     let mut s = shift;
     if let Some((a, z)) = data {
@@ -158,9 +153,17 @@ pub fn track_frame(
         }
     }
     let order = lbs::topological_order(model.parent, b)?;
-    let root = order[0];
+    // the first root, whose translation the root shift moves (topological_order has one)
+    let root = model.parent.iter().position(|&p| p < 0).unwrap_or(0);
+    // one-hot skinning weights: every rest point moves with its bone
+    let ones = vec![1.0; m];
+    let sw = SparseWeights {
+        idx: model.labels,
+        w: &ones,
+        k: 1,
+    };
     let mut r = r.to_vec();
-    let (mut t, mut x) = fixed_joint_pose(model, &r, &order, t_root, None)?;
+    let (mut t, mut x) = fixed_joint_pose(model, sw, &r, &order, t_root, None)?;
     let d = capped_nn_distances(&x, v, f64::MAX)?;
     let mean_d2 = d.iter().map(|v| v * v).sum::<f64>() / d.len() as f64;
     let mut tau = (4.0 / 3.0 * mean_d2).max(s.tau0).min(s.tau_max);
@@ -170,12 +173,6 @@ pub fn track_frame(
         0
     };
     let offsets = [0usize, v.len() / 3];
-    let ones = vec![1.0; m];
-    let sw = SparseWeights {
-        idx: model.labels,
-        w: &ones,
-        k: 1,
-    };
     let dims = Dims { f: 1, m, b };
     let mut xn = vec![0.0; 3 * m];
     for it in 0..s.iterations {
@@ -235,7 +232,7 @@ pub fn track_frame(
                 &[],
                 dims,
             )?;
-            (t, x) = fixed_joint_pose(model, &r, &order, root_t, Some((&a, &z)))?;
+            (t, x) = fixed_joint_pose(model, sw, &r, &order, root_t, Some((&a, &z)))?;
         }
         // the form of Eq. 12 with this E-step's statistics at the new points
         let mut ss = es.sum_x2[0];

@@ -17,14 +17,16 @@ use crate::core::lbs::{self, Dims, SparseWeights};
 use crate::core::qp;
 use crate::core::track;
 
-fn indices(arr: &PyReadonlyArray2<'_, i64>, name: &str) -> PyResult<(Vec<usize>, usize)> {
-    let cols = arr.shape()[1];
-    let s = arr.c_slice(name)?;
-    let out = s
+/// Non-negative int64 values as indices; a negative one is an `InputError` naming `name`.
+fn to_indices(values: &[i64], name: &str) -> PyResult<Vec<usize>> {
+    values
         .iter()
         .map(|&v| usize::try_from(v).map_err(|_| input_err(format!("{name}: negative index {v}"))))
-        .collect::<PyResult<Vec<usize>>>()?;
-    Ok((out, cols))
+        .collect()
+}
+
+fn indices(arr: &PyReadonlyArray2<'_, i64>, name: &str) -> PyResult<(Vec<usize>, usize)> {
+    Ok((to_indices(arr.c_slice(name)?, name)?, arr.shape()[1]))
 }
 
 fn parents(arr: &PyReadonlyArray1<'_, i64>) -> PyResult<Vec<i64>> {
@@ -341,11 +343,7 @@ fn lbs_estep_frames<'py>(
         _ => None,
     };
     let taus = flat1(py, &tau, "tau")?;
-    let offs = offsets
-        .c_slice("offsets")?
-        .iter()
-        .map(|&o| usize::try_from(o).map_err(|_| input_err(format!("offsets: negative {o}"))))
-        .collect::<PyResult<Vec<usize>>>()?;
+    let offs = to_indices(offsets.c_slice("offsets")?, "offsets")?;
     let prec = if single {
         crate::core::gmm::Precision::Single
     } else {
@@ -451,11 +449,7 @@ fn lbs_track_frame<'py>(
     let js = points(py, &joints, "joints")?;
     let rs = flat2(py, &r, "R", 9)?;
     let parent = parents(&bone_parent)?;
-    let labels = labels
-        .c_slice("labels")?
-        .iter()
-        .map(|&l| usize::try_from(l).map_err(|_| input_err(format!("labels: negative {l}"))))
-        .collect::<PyResult<Vec<usize>>>()?;
+    let labels = to_indices(labels.c_slice("labels")?, "labels")?;
     let scalars = [tau0, tau_max, floor, anneal, omega, gamma, density, kappa];
     if scalars.iter().any(|x| !x.is_finite())
         || t_root.iter().any(|x| !x.is_finite())
