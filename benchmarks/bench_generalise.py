@@ -27,6 +27,17 @@ afresh, so a change of the scoring needs no run.
 Means: recall, precision, joints out, the far share and seconds over every sequence (a run
 that fails counts as recall 0 and no joints); the normalised error over the sequences where the
 run matched a joint.
+
+A single run is noisy: a last-bit change upstream (another CPU's vector code, a reordered sum)
+flips discrete choices (a cluster boundary, a merge) and moves a set's means by a few
+hundredths. ``--seeds K`` runs every variant with ``K`` seeds (``[registration] seed`` and
+``[structure] seed`` raised by ``0 .. K-1``: other rest points, other k-means starts), scores
+each sequence by its mean over the seeds and prints the spread of each set's means over the
+seeds. With two or more variants it prints each one's difference from variant 0 per set, with
+the paired sign-flip p-value over the sequences (:func:`benchmarks.bench_suite.sign_flip_p`)::
+
+    python -m benchmarks.bench_generalise --set check '{}' '{"joints": {"track_sweeps": 1}}' \\
+        --seeds 2
 """
 
 from __future__ import annotations
@@ -47,6 +58,7 @@ import numpy as np
 
 import pointrig
 from benchmarks import corpus
+from benchmarks.bench_suite import sign_flip_p
 from pointrig.config import PipelineConfig, RegistrationConfig, apply_overrides
 from pointrig.errors import PointrigError
 from pointrig.evaluate import evaluate, scorable_joints, subject_size
@@ -55,7 +67,7 @@ from pointrig.sequence import PointSequence
 
 DEFAULT_CACHE = Path.home() / ".cache" / "pointrig-corpus"
 #: Columns of the CSV, one row per run.
-CSV_FIELDS = ("variant", "set", "sequence", "subject", "category", "group", "camera", "distance",
+CSV_FIELDS = ("variant", "seed", "set", "sequence", "subject", "category", "group", "camera", "distance",
               "frames", "recall", "precision", "n_pred", "n_scorable", "n_matched",
               "normalized_error_cm", "raw_error_cm", "far_fraction", "n_far", "subject_size_m",
               "seconds", "cpu_seconds", "error")
@@ -148,23 +160,34 @@ def ensure_sequence(name: str, frames: int, cache: Path, synth_code: str) -> tup
     return str(path), time.perf_counter() - t0
 
 
-def make_config(variant: str) -> PipelineConfig:
-    """The :class:`PipelineConfig` of a variant (JSON overrides or ``paper``)."""
+def make_config(variant: str, seed: int = 0) -> PipelineConfig:
+    """The :class:`PipelineConfig` of a variant (JSON overrides or ``paper``), its
+    ``[registration]`` and ``[structure]`` seeds raised by ``seed``."""
     if variant.strip() == "paper":
         if hasattr(PipelineConfig, "paper"):
-            return PipelineConfig.paper()
-        return dataclasses.replace(PipelineConfig(), registration=RegistrationConfig.paper())
-    data = json.loads(variant)
-    if not isinstance(data, dict):
-        raise TypeError("a variant is a JSON object of per-stage overrides")
-    return apply_overrides(data, where=f"variant {variant}")
+            cfg = PipelineConfig.paper()
+        else:
+            cfg = dataclasses.replace(PipelineConfig(), registration=RegistrationConfig.paper())
+    else:
+        data = json.loads(variant)
+        if not isinstance(data, dict):
+            raise TypeError("a variant is a JSON object of per-stage overrides")
+        cfg = apply_overrides(data, where=f"variant {variant}")
+    if seed:
+        cfg = dataclasses.replace(
+            cfg, registration=dataclasses.replace(cfg.registration,
+                                                  seed=cfg.registration.seed + seed),
+            structure=dataclasses.replace(cfg.structure, seed=cfg.structure.seed + seed))
+    return cfg
 
 
-def run_pipeline(name: str, seq_path: str, variant: str, out_path: str) -> dict[str, Any]:
-    """Run the pipeline on one cached sequence and save its joints ``(F, P, 3)`` (or its
-    error) with the seconds it took to ``out_path`` (an ``.npz``); returns what was saved."""
+def run_pipeline(name: str, seq_path: str, variant: str, out_path: str, seed: int = 0
+                 ) -> dict[str, Any]:
+    """Run the pipeline on one cached sequence (with the variant's seeds raised by ``seed``,
+    :func:`make_config`) and save its joints ``(F, P, 3)`` (or its error) with the seconds it
+    took to ``out_path`` (an ``.npz``); returns what was saved."""
     data = load_cached(Path(seq_path))
-    cfg = make_config(variant)
+    cfg = make_config(variant, seed)
     ps = PointSequence(data["frames"], f"corpus:{name}",
                        [f"frame_{t:04d}" for t in range(len(data["frames"]))], "memory")
     t0, c0 = time.perf_counter(), time.process_time()
@@ -219,10 +242,10 @@ def score(name: str, seq_path: str, pred_path: str) -> dict[str, Any]:
     return row
 
 
-def _task(args: tuple[str, str, str, str]) -> tuple[str, str]:
-    name, seq_path, variant, pred_path = args
+def _task(args: tuple[str, str, str, str, int]) -> tuple[str, str]:
+    name, seq_path, variant, pred_path, seed = args
     try:
-        out = run_pipeline(name, seq_path, variant, pred_path)
+        out = run_pipeline(name, seq_path, variant, pred_path, seed)
     except Exception:  # noqa: BLE001 - a bug, not a pipeline error: report it, run the rest
         return name, traceback.format_exc(limit=3).strip().splitlines()[-1]
     return name, str(out["error"])
@@ -250,7 +273,7 @@ def _fmt(row: dict[str, Any] | None) -> str:
     far_s = f"{100 * far:3.0f}%" if np.isfinite(far) else "   -"
     prec = row["precision"]
     prec_s = f"{prec:.2f}" if np.isfinite(prec) else "   -"
-    return (f"{row['recall']:.2f}/{prec_s} {row['n_pred']:>2}/{row['n_scorable']:<2} {ne_s} "
+    return (f"{row['recall']:.2f}/{prec_s} {row['n_pred']:>2.0f}/{row['n_scorable']:<2.0f} {ne_s} "
             f"{far_s} {row['seconds']:3.0f}s")
 
 
@@ -276,6 +299,66 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, float]:
     }
 
 
+NUMERIC = ("recall", "precision", "n_pred", "n_scorable", "n_matched", "normalized_error_cm",
+           "raw_error_cm", "far_fraction", "n_far", "subject_size_m", "seconds", "cpu_seconds")
+
+
+def seed_mean(rows: list[dict[str, Any] | None]) -> dict[str, Any] | None:
+    """One sequence's runs (one per seed; ``None`` for a crashed run) as one row: the mean of
+    each number over the scored runs (errors and precision over the runs that have one), the
+    runs' pipeline errors joined. ``None`` if no run was scored."""
+    ok = [r for r in rows if r is not None and "recall" in r]
+    if not ok:
+        return None
+    out = dict(ok[0])
+    for k in NUMERIC:
+        vals = np.array([r[k] for r in ok], dtype=float)
+        out[k] = float(np.nanmean(vals)) if np.isfinite(vals).any() else float("nan")
+    out["error"] = "; ".join(r["error"] for r in ok if r.get("error"))
+    return out
+
+
+def f1_score(row: dict[str, Any]) -> float:
+    """Harmonic mean of a row's recall and precision (0 without a prediction)."""
+    r, p = row["recall"], row["precision"]
+    return 2 * r * p / (r + p) if np.isfinite(p) and r + p > 0 else 0.0
+
+
+def seed_spread(per_seed: list[dict[str, float]]) -> str:
+    """The spread over seeds of a set's means (:func:`summarise` per seed): the standard
+    deviation of recall, precision, F1 of the means, and normalised error."""
+    per_seed = [s for s in per_seed if s]
+    if len(per_seed) < 2:
+        return "spread over seeds: -"
+    sd = {k: float(np.std([s[k] for s in per_seed], ddof=1))
+          for k in ("recall", "precision", "normalized_error_cm")}
+    f1 = [2 * s["recall"] * s["precision"] / (s["recall"] + s["precision"]) for s in per_seed]
+    return (f"spread over {len(per_seed)} seeds (sd): recall {sd['recall']:.3f}  precision "
+            f"{sd['precision']:.3f}  F1 {float(np.std(f1, ddof=1)):.3f}  norm "
+            f"{sd['normalized_error_cm']:.2f} cm")
+
+
+def paired_line(base: list[dict[str, Any]], run: list[dict[str, Any]]) -> str:
+    """Per-sequence differences ``run - base`` (rows of the same sequences in the same order):
+    the mean difference of F1, recall, precision, joints out and normalised error (over the
+    sequences where both matched a joint), each with its paired sign-flip p-value, and how many
+    sequences' F1 rose and fell."""
+    parts = []
+    for what, get, fmt in (("F1", f1_score, "+.3f"),
+                           ("recall", lambda r: r["recall"], "+.3f"),
+                           ("precision", lambda r: r["precision"] if np.isfinite(r["precision"])
+                            else 0.0, "+.3f"),
+                           ("joints", lambda r: r["n_pred"], "+.1f"),
+                           ("norm cm", lambda r: r["normalized_error_cm"], "+.2f")):
+        d = [get(y) - get(x) for x, y in zip(base, run)]
+        d = [x for x in d if np.isfinite(x)]
+        mean = float(np.mean(d)) if d else float("nan")
+        parts.append(f"{what} {mean:{fmt}} (p {sign_flip_p(d):.2f})")
+    df1 = [f1_score(y) - f1_score(x) for x, y in zip(base, run)]
+    up, down = sum(d > 1e-9 for d in df1), sum(d < -1e-9 for d in df1)
+    return ", ".join(parts) + f"; F1 up on {up}, down on {down} of {len(df1)}"
+
+
 def _summary_line(label: str, s: dict[str, float]) -> str:
     if not s:
         return f"{label:<30} -"
@@ -298,9 +381,11 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--cache", type=Path, default=DEFAULT_CACHE)
     ap.add_argument("--csv", type=Path, default=None, help="write one row per run here")
     ap.add_argument("--rerun", action="store_true", help="ignore cached scores")
+    ap.add_argument("--seeds", type=int, default=1,
+                    help="runs per variant and sequence, seeds raised by 0 .. K-1")
     a = ap.parse_args(argv)
-    if a.frames < 2 or a.jobs < 1:
-        ap.error("--frames must be >= 2 and --jobs >= 1")
+    if a.frames < 2 or a.jobs < 1 or a.seeds < 1:
+        ap.error("--frames must be >= 2, --jobs and --seeds >= 1")
     try:
         for v in a.variants:
             make_config(v)
@@ -337,68 +422,87 @@ def main(argv: list[str]) -> int:
         print(f"synthesized {sum(s > 0 for _, _, s in done)} sequences in {synth_secs:.0f} s "
               f"(cached in {a.cache})", flush=True)
     # runs: saved joints or tasks; every run is scored afresh
-    rows: dict[tuple[int, str], dict[str, Any]] = {}
+    seeds = range(a.seeds)
+    rows: dict[tuple[int, int, str], dict[str, Any]] = {}
     tasks = []
-    pred_paths: dict[tuple[int, str], str] = {}
+    pred_paths: dict[tuple[int, int, str], str] = {}
     for v, var in enumerate(a.variants):
-        vkey = hashlib.sha1(json.dumps({"v": var.strip(), "code": code}).encode()).hexdigest()
-        for n in names:
-            rp = a.cache / "runs" / vkey[:16] / f"{Path(paths[n]).stem}.npz"
-            pred_paths[(v, n)] = str(rp)
-            if not rp.exists() or a.rerun:
-                tasks.append((v, (n, paths[n], var, str(rp))))
-    pending = {(v, t[0]) for v, t in tasks}
+        for sd in seeds:
+            key: dict[str, Any] = {"v": var.strip(), "code": code}
+            if sd:
+                key["seed"] = sd
+            vkey = hashlib.sha1(json.dumps(key).encode()).hexdigest()
+            for n in names:
+                rp = a.cache / "runs" / vkey[:16] / f"{Path(paths[n]).stem}.npz"
+                pred_paths[(v, sd, n)] = str(rp)
+                if not rp.exists() or a.rerun:
+                    tasks.append(((v, sd), (n, paths[n], var, str(rp), sd)))
+    pending = {(v, sd, t[0]) for (v, sd), t in tasks}
     print(f"{'sequence':<24} {'set':<6} {'cat':<10}" +
           "".join(f"{'v' + str(v) + ': rec/prec out/sc  cm far  time':>34}"
                   for v in range(len(a.variants))), flush=True)
     shown: set[str] = set()
     failures: list[str] = []
+    keys = [(v, sd) for v in range(len(a.variants)) for sd in seeds]
 
     def show_ready() -> None:
         for n in names:
             if n in shown:
                 continue
-            if any((v, n) in pending for v in range(len(a.variants))):
+            if any((v, sd, n) in pending for v, sd in keys):
                 return
-            for v in range(len(a.variants)):
-                if Path(pred_paths[(v, n)]).exists():
-                    rows[(v, n)] = score(n, paths[n], pred_paths[(v, n)])
+            for v, sd in keys:
+                if Path(pred_paths[(v, sd, n)]).exists():
+                    rows[(v, sd, n)] = score(n, paths[n], pred_paths[(v, sd, n)])
             q = corpus.SEQUENCES[n]
             print(f"{n:<24} {q.set:<6} {q.category[:10]:<10}" +
-                  "".join(f"{_fmt(rows.get((v, n))):>34}" for v in range(len(a.variants))),
-                  flush=True)
+                  "".join(f"{_fmt(seed_mean([rows.get((v, sd, n)) for sd in seeds])):>34}"
+                          for v in range(len(a.variants))), flush=True)
             shown.add(n)
 
-    def finished(v: int, name: str, err: str) -> None:
-        pending.discard((v, name))
-        if err and not Path(pred_paths[(v, name)]).exists():
-            failures.append(f"variant {v} {name}: {err}")
+    def finished(v: int, sd: int, name: str, err: str) -> None:
+        pending.discard((v, sd, name))
+        if err and not Path(pred_paths[(v, sd, name)]).exists():
+            failures.append(f"variant {v} seed {sd} {name}: {err}")
         show_ready()
 
     show_ready()
     if a.jobs > 1 and tasks:
         with ProcessPoolExecutor(a.jobs) as ex:
-            futs = [(v, ex.submit(_task, t)) for v, t in tasks]
-            for v, f in futs:
-                finished(v, *f.result())
+            futs = [(k, ex.submit(_task, t)) for k, t in tasks]
+            for (v, sd), f in futs:
+                finished(v, sd, *f.result())
     else:
-        for v, t in tasks:
-            finished(v, *_task(t))
+        for (v, sd), t in tasks:
+            finished(v, sd, *_task(t))
     for msg in failures:
         print(msg)
-    errors = [(v, n, r["error"]) for (v, n), r in rows.items() if r.get("error")]
-    for v, n, e in errors:
-        print(f"variant {v} {n}: {e}")
+    errors = [(v, sd, n, r["error"]) for (v, sd, n), r in rows.items() if r.get("error")]
+    for v, sd, n, e in errors:
+        print(f"variant {v} seed {sd} {n}: {e}")
     print()
+    # per variant and sequence: the mean over the seeds (a run that crashed, a bug with no
+    # saved result, is listed above and left out)
+    means: dict[tuple[int, str], dict[str, Any]] = {}
+    for v in range(len(a.variants)):
+        for n in names:
+            m = seed_mean([rows.get((v, sd, n)) for sd in seeds])
+            if m is not None:
+                means[(v, n)] = m
     for v, var in enumerate(a.variants):
-        print(f"variant {v}: {var}")
+        print(f"variant {v}: {var}" + (f" ({a.seeds} seeds, sequences scored by their mean)"
+                                       if a.seeds > 1 else ""))
         for s in ("tuning", "check"):
-            # a run that crashed (a bug: no saved result) is listed above and left out here
-            rs = [rows[(v, n)] for n in names
-                  if corpus.SEQUENCES[n].set == s and (v, n) in rows]
+            rs = [means[(v, n)] for n in names
+                  if corpus.SEQUENCES[n].set == s and (v, n) in means]
             if not rs:
                 continue
             print(_summary_line(f"  {s}", summarise(rs)))
+            if a.seeds > 1:
+                print(f"  {'':<28}" + seed_spread([
+                    summarise([rows[(v, sd, n)] for n in names
+                               if corpus.SEQUENCES[n].set == s and (v, sd, n) in rows])
+                    for sd in seeds]))
             for g in corpus.GROUPS:
                 sub = [r for r in rs if r.get("group") == g]
                 if sub:
@@ -407,14 +511,26 @@ def main(argv: list[str]) -> int:
                 sub = [r for r in rs if r.get("category") == c]
                 if sub:
                     print(_summary_line(f"      {c}", summarise(sub)))
-    print(f"\n{len(names)} sequences x {len(a.variants)} variants, {a.frames} frames, "
+    if len(a.variants) > 1:
+        print("\ndifference from variant 0 (per sequence; p: paired sign-flip test over the "
+              "sequences)")
+        for v in range(1, len(a.variants)):
+            for s in ("tuning", "check"):
+                both = [n for n in names if corpus.SEQUENCES[n].set == s
+                        and (0, n) in means and (v, n) in means]
+                if both:
+                    print(f"  variant {v}, {s:<6} " + paired_line(
+                        [means[(0, n)] for n in both], [means[(v, n)] for n in both]))
+    print(f"\n{len(names)} sequences x {len(a.variants)} variants x {a.seeds} seeds, "
+          f"{a.frames} frames, "
           f"{len(tasks)} runs now; wall {time.perf_counter() - t_start:.0f} s")
     if a.csv:
         with open(a.csv, "w", newline="") as fh:
             w = csv.DictWriter(fh, fieldnames=CSV_FIELDS, extrasaction="ignore")
             w.writeheader()
-            for (v, n), r in sorted(rows.items(), key=lambda x: (x[0][0], names.index(x[0][1]))):
-                w.writerow({"variant": a.variants[v], **r})
+            for (v, sd, n), r in sorted(rows.items(),
+                                        key=lambda x: (x[0][0], x[0][1], names.index(x[0][2]))):
+                w.writerow({"variant": a.variants[v], "seed": sd, **r})
         print(f"wrote {a.csv}")
     return 1 if failures else 0
 
