@@ -437,6 +437,8 @@ def main(argv: list[str]) -> int:
                 pred_paths[(v, sd, n)] = str(rp)
                 if not rp.exists() or a.rerun:
                     tasks.append(((v, sd), (n, paths[n], var, str(rp), sd)))
+    # sequence by sequence, so that each one's line is printed as soon as its runs are done
+    tasks.sort(key=lambda k_t: names.index(k_t[1][0]))
     pending = {(v, sd, t[0]) for (v, sd), t in tasks}
     print(f"{'sequence':<24} {'set':<6} {'cat':<10}" +
           "".join(f"{'v' + str(v) + ': rec/prec out/sc  cm far  time':>34}"
