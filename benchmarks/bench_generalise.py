@@ -67,8 +67,8 @@ from pointrig.sequence import PointSequence
 
 DEFAULT_CACHE = Path.home() / ".cache" / "pointrig-corpus"
 #: Columns of the CSV, one row per run.
-CSV_FIELDS = ("variant", "seed", "set", "sequence", "subject", "category", "group", "camera", "distance",
-              "frames", "recall", "precision", "n_pred", "n_scorable", "n_matched",
+CSV_FIELDS = ("variant", "seed", "set", "sequence", "subject", "category", "group", "camera",
+              "distance", "frames", "recall", "precision", "n_pred", "n_scorable", "n_matched",
               "normalized_error_cm", "raw_error_cm", "far_fraction", "n_far", "subject_size_m",
               "seconds", "cpu_seconds", "error")
 
@@ -332,7 +332,7 @@ def seed_spread(per_seed: list[dict[str, float]]) -> str:
         return "spread over seeds: -"
     sd = {k: float(np.std([s[k] for s in per_seed], ddof=1))
           for k in ("recall", "precision", "normalized_error_cm")}
-    f1 = [2 * s["recall"] * s["precision"] / (s["recall"] + s["precision"]) for s in per_seed]
+    f1 = [f1_score(s) for s in per_seed]
     return (f"spread over {len(per_seed)} seeds (sd): recall {sd['recall']:.3f}  precision "
             f"{sd['precision']:.3f}  F1 {float(np.std(f1, ddof=1)):.3f}  norm "
             f"{sd['normalized_error_cm']:.2f} cm")
@@ -426,26 +426,30 @@ def main(argv: list[str]) -> int:
     rows: dict[tuple[int, int, str], dict[str, Any]] = {}
     tasks = []
     pred_paths: dict[tuple[int, int, str], str] = {}
-    for v, var in enumerate(a.variants):
-        for sd in seeds:
-            key: dict[str, Any] = {"v": var.strip(), "code": code}
-            if sd:
-                key["seed"] = sd
-            vkey = hashlib.sha1(json.dumps(key).encode()).hexdigest()
-            for n in names:
-                rp = a.cache / "runs" / vkey[:16] / f"{Path(paths[n]).stem}.npz"
-                pred_paths[(v, sd, n)] = str(rp)
-                if not rp.exists() or a.rerun:
-                    tasks.append(((v, sd), (n, paths[n], var, str(rp), sd)))
+    keys = [(v, sd) for v in range(len(a.variants)) for sd in seeds]
+    run_dirs = {}
+    for v, sd in keys:
+        key: dict[str, Any] = {"v": a.variants[v].strip(), "code": code}
+        if sd:
+            key["seed"] = sd
+        run_dirs[(v, sd)] = a.cache / "runs" / hashlib.sha1(
+            json.dumps(key).encode()).hexdigest()[:16]
     # sequence by sequence, so that each one's line is printed as soon as its runs are done
-    tasks.sort(key=lambda k_t: names.index(k_t[1][0]))
+    for n in names:
+        for v, sd in keys:
+            rp = run_dirs[(v, sd)] / f"{Path(paths[n]).stem}.npz"
+            pred_paths[(v, sd, n)] = str(rp)
+            if not rp.exists() or a.rerun:
+                tasks.append(((v, sd), (n, paths[n], a.variants[v], str(rp), sd)))
     pending = {(v, sd, t[0]) for (v, sd), t in tasks}
     print(f"{'sequence':<24} {'set':<6} {'cat':<10}" +
           "".join(f"{'v' + str(v) + ': rec/prec out/sc  cm far  time':>34}"
                   for v in range(len(a.variants))), flush=True)
     shown: set[str] = set()
     failures: list[str] = []
-    keys = [(v, sd) for v in range(len(a.variants)) for sd in seeds]
+    # per variant and sequence: the mean over the seeds (a run that crashed, a bug with no
+    # saved result, is listed below and left out)
+    means: dict[tuple[int, str], dict[str, Any]] = {}
 
     def show_ready() -> None:
         for n in names:
@@ -456,10 +460,14 @@ def main(argv: list[str]) -> int:
             for v, sd in keys:
                 if Path(pred_paths[(v, sd, n)]).exists():
                     rows[(v, sd, n)] = score(n, paths[n], pred_paths[(v, sd, n)])
+            for v in range(len(a.variants)):
+                m = seed_mean([rows.get((v, sd, n)) for sd in seeds])
+                if m is not None:
+                    means[(v, n)] = m
             q = corpus.SEQUENCES[n]
             print(f"{n:<24} {q.set:<6} {q.category[:10]:<10}" +
-                  "".join(f"{_fmt(seed_mean([rows.get((v, sd, n)) for sd in seeds])):>34}"
-                          for v in range(len(a.variants))), flush=True)
+                  "".join(f"{_fmt(means.get((v, n))):>34}" for v in range(len(a.variants))),
+                  flush=True)
             shown.add(n)
 
     def finished(v: int, sd: int, name: str, err: str) -> None:
@@ -483,14 +491,6 @@ def main(argv: list[str]) -> int:
     for v, sd, n, e in errors:
         print(f"variant {v} seed {sd} {n}: {e}")
     print()
-    # per variant and sequence: the mean over the seeds (a run that crashed, a bug with no
-    # saved result, is listed above and left out)
-    means: dict[tuple[int, str], dict[str, Any]] = {}
-    for v in range(len(a.variants)):
-        for n in names:
-            m = seed_mean([rows.get((v, sd, n)) for sd in seeds])
-            if m is not None:
-                means[(v, n)] = m
     for v, var in enumerate(a.variants):
         print(f"variant {v}: {var}" + (f" ({a.seeds} seeds, sequences scored by their mean)"
                                        if a.seeds > 1 else ""))
