@@ -94,3 +94,16 @@ def test_merged_weights_keep_their_sums():
     assert W2.shape == (len(rest), len(sel.keep))
     np.testing.assert_allclose(W2.sum(axis=1), 1.0)
     np.testing.assert_allclose(W2[:, 0], W[:, 0] + W[:, 1])
+
+
+def test_the_choice_does_not_depend_on_the_sampling_density():
+    # every raw point four times over: a denser sensor sees the same surface, so the evidence,
+    # counted at the rest points' resolution, and every removal margin are the same
+    rng = np.random.default_rng(4)
+    rest, labels, parent, R, T, raw = _scene(12.0, 1.0, rng, frames=10)
+    sel = select_joints(raw, rest, labels, parent, R, T)
+    dense = select_joints([np.repeat(x, 4, axis=0) for x in raw], rest, labels, parent, R, T)
+    assert [r[:2] for r in dense.removed] == [r[:2] for r in sel.removed]
+    np.testing.assert_allclose([r[2] for r in dense.removed], [r[2] for r in sel.removed],
+                               rtol=1e-9)
+    assert dense.keep.tolist() == sel.keep.tolist()

@@ -9,6 +9,11 @@ points, not on the registration:
   T_t[l_m]``; a raw point's residual is its distance to the nearest posed point, truncated at
   ``c = 3 sigma_r`` (``sigma_r`` from the median residual, so outliers and background cost a
   constant and decide nothing);
+- the model resolves no more than its ``M`` rest points: raw points sharing a nearest rest point
+  share its error, so they are not independent observations. Frame ``t``'s ``N_t`` raw points
+  count as the ``M_t`` distinct rest points they are nearest to: each weighs ``M_t / N_t`` in
+  the sums and counts below, and the choice does not depend on the sampling density (the same
+  frames sampled four times as densely keep the same joints);
 - with Gaussian residuals of variance ``sigma^2`` (the mean truncated squared residual of the
   full tree), ``-2 log L = SSE / sigma^2`` up to a constant;
 - removing the joint between bone ``b`` and its parent ``p`` replaces their two motions by the
@@ -17,8 +22,8 @@ points, not on the registration:
 - a ball joint costs a relative rotation per frame (3 parameters each) and its position (3).
   Each frame's rotation is estimated from that frame's raw points on the two parts only, and
   the position from all of them, so the Bayesian information criterion charges
-  ``pen = 3 F ln(n / F) + 3 ln(n)``, ``n`` the raw points nearest the two parts in the ``F``
-  frames scored, and keeps the joint when ``dSSE / sigma^2 > penalty_scale * pen``;
+  ``pen = 3 F ln(n / F) + 3 ln(n)``, ``n`` the (weighted) raw points nearest the two parts in
+  the ``F`` frames scored, and keeps the joint when ``dSSE / sigma^2 > penalty_scale * pen``;
 - joints are removed greedily, the least supported first, until every remaining joint passes.
 """
 
@@ -99,7 +104,8 @@ def select_joints(frames: Sequence[np.ndarray], rest_points: np.ndarray, labels:
     R, T
         ``(F, B, 3, 3)``, ``(F, B, 3)``: ``T_frame_rest`` of each bone, metres.
     penalty_scale
-        Multiplier of the BIC penalty (1 = BIC); 0 keeps every joint.
+        Multiplier of the BIC penalty (1 = BIC; the pipeline's ``joint_penalty`` is 0.5);
+        0 keeps every joint.
     max_frames
         Frames scored (evenly spaced); the penalty counts the same frames.
 
@@ -118,11 +124,15 @@ def select_joints(frames: Sequence[np.ndarray], rest_points: np.ndarray, labels:
     X = [np.asarray(frames[t], dtype=float) for t in fidx]
     n = sum(len(x) for x in X)
     # residual of every raw point under the full tree, and the bone of its nearest posed point
-    d2, near = [], []
+    d2, near, seen = [], [], []
     for i, t in enumerate(fidx):
         d, j = cKDTree(_posed(Q, labels, R[t], T[t])).query(X[i])
         d2.append(d ** 2)
         near.append(labels[j])
+        seen.append(j)
+    # weight of each frame's raw points: the distinct rest points they see over their number
+    # (the observations the model can tell apart; the module docstring)
+    wt = np.array([len(np.unique(j)) / max(len(j), 1) for j in seen])
     resid = np.sqrt(np.concatenate(d2)) if n else np.zeros(1)
     cap = 3.0 * float(np.median(resid)) / 0.6745
     if penalty_scale <= 0 or B < 2 or n == 0 or cap <= 0:
@@ -144,15 +154,15 @@ def select_joints(frames: Sequence[np.ndarray], rest_points: np.ndarray, labels:
         p = parent[b]
         g = (labels == b) | (labels == p)
         dsse = 0.0
-        n_pair = 0
+        n_pair = 0.0
         Rm_all, Tm_all = merged_motion(g, fidx)
         for i in range(len(fidx)):
             sel = (near[i] == b) | (near[i] == p)
-            n_pair += int(sel.sum())
+            n_pair += wt[i] * int(sel.sum())
             if not sel.any():
                 continue
             dm = nearest_distances(X[i][sel], Q[g] @ Rm_all[i].T + Tm_all[i], cap)
-            dsse += float(np.sum(dm * dm) - np.sum(d2[i][sel]))
+            dsse += wt[i] * float(np.sum(dm * dm) - np.sum(d2[i][sel]))
         nf = len(fidx)
         pen = penalty_scale * (3 * nf * np.log(max(n_pair / nf, 2.0))
                                + 3 * np.log(max(n_pair, 2)))
