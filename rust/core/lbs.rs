@@ -693,11 +693,94 @@ pub fn sweep_articulated(
     smooth: &[f64],
     d: Dims,
 ) -> CoreResult<()> {
+    let plan = SweepPlan::new(parent, sw, d)?;
+    sweep_with_plan(
+        &plan, q, sw, r, t, a, z, r_pre, parent, joints, gamma, smooth, d,
+    )
+}
+
+/// What [`sweep_articulated`] derives from the bone tree and the weights alone: the bones'
+/// order, their subtrees and the points each subtree touches. A caller that sweeps many times
+/// with the same tree and weights (the tracker) builds it once.
+#[derive(Clone, Debug)]
+pub struct SweepPlan {
+    order: Vec<usize>,
+    // in_sub[a * b + j]: bone j is in the subtree of bone a (a itself included)
+    in_sub: Vec<bool>,
+    subtree: Vec<Vec<usize>>,
+    // the points (increasing) with a positive weight on a bone of each subtree
+    sub_points: Vec<Vec<usize>>,
+    m: usize,
+}
+
+impl SweepPlan {
+    /// The plan of the tree `parent (B)` and the weights `sw` over `d.m` points.
+    pub fn new(parent: &[i64], sw: SparseWeights<'_>, d: Dims) -> CoreResult<Self> {
+        check_weights(&sw, d)?;
+        let order = topological_order(parent, d.b)?;
+        let (b, m, k) = (d.b, d.m, sw.k);
+        let mut in_sub = vec![false; b * b];
+        for j in 0..b {
+            let mut cur = j as i64;
+            while cur >= 0 {
+                in_sub[cur as usize * b + j] = true;
+                cur = parent[cur as usize];
+            }
+        }
+        let subtree: Vec<Vec<usize>> = (0..b)
+            .map(|a_| (0..b).filter(|&j| in_sub[a_ * b + j]).collect())
+            .collect();
+        // every ancestor of every bone a point is weighted on (points in increasing order)
+        let mut sub_points: Vec<Vec<usize>> = vec![Vec::new(); b];
+        for mm in 0..m {
+            for s in 0..k {
+                if sw.w[mm * k + s] <= 0.0 {
+                    continue;
+                }
+                let mut cur = sw.idx[mm * k + s] as i64;
+                while cur >= 0 {
+                    let list = &mut sub_points[cur as usize];
+                    if list.last() != Some(&mm) {
+                        list.push(mm);
+                    }
+                    cur = parent[cur as usize];
+                }
+            }
+        }
+        Ok(SweepPlan {
+            order,
+            in_sub,
+            subtree,
+            sub_points,
+            m,
+        })
+    }
+}
+
+/// [`sweep_articulated`] with its [`SweepPlan`] built by the caller from the same `parent`,
+/// `sw` and `d`.
+#[allow(clippy::too_many_arguments)]
+pub fn sweep_with_plan(
+    plan: &SweepPlan,
+    q: &[f64],
+    sw: SparseWeights<'_>,
+    r: &mut [f64],
+    t: &mut [f64],
+    a: &[f64],
+    z: &[f64],
+    r_pre: &[f64],
+    parent: &[i64],
+    joints: &[f64],
+    gamma: f64,
+    smooth: &[f64],
+    d: Dims,
+) -> CoreResult<()> {
     check_common(q, r, t, d)?;
     check_weights(&sw, d)?;
     check_data(a, z, d)?;
     check_len("R_pre", r_pre.len(), r.len())?;
     check_len("joints", joints.len(), d.b * 3)?;
+    check_len("bone_parent", parent.len(), d.b)?;
     if gamma.is_nan() || gamma < 0.0 {
         return Err(CoreError::InvalidInput("gamma must be >= 0".into()));
     }
@@ -709,29 +792,14 @@ pub fn sweep_articulated(
             ));
         }
     }
-    let order = topological_order(parent, d.b)?;
+    if plan.order.len() != d.b || plan.m != d.m {
+        return Err(CoreError::InvalidInput(
+            "sweep plan built for another tree or other points".into(),
+        ));
+    }
     let (b, m, k) = (d.b, d.m, sw.k);
-    // in_sub[a * b + j]: bone j is in the subtree of bone a (a itself included)
-    let mut in_sub = vec![false; b * b];
-    for j in 0..b {
-        let mut cur = j as i64;
-        while cur >= 0 {
-            in_sub[cur as usize * b + j] = true;
-            cur = parent[cur as usize];
-        }
-    }
-    let subtree: Vec<Vec<usize>> = (0..b)
-        .map(|a_| (0..b).filter(|&j| in_sub[a_ * b + j]).collect())
-        .collect();
-    // points touched by each subtree
-    let mut sub_points = vec![Vec::new(); b];
-    for mm in 0..m {
-        for (a_, list) in sub_points.iter_mut().enumerate() {
-            if (0..k).any(|s| sw.w[mm * k + s] > 0.0 && in_sub[a_ * b + sw.idx[mm * k + s]]) {
-                list.push(mm);
-            }
-        }
-    }
+    let (order, in_sub, subtree, sub_points) =
+        (&plan.order, &plan.in_sub, &plan.subtree, &plan.sub_points);
     let frame_update = |f: usize, rf: &mut [f64], tf: &mut [f64], snap: &[f64]| {
         let (mut rs, mut ts) = load_frame(rf, tf, b);
         // the temporal term's coefficient of each bone's rotation in this frame: the second
@@ -770,7 +838,7 @@ pub fn sweep_articulated(
         let af = &a[f * m..(f + 1) * m];
         let zf = &z[f * m * 3..(f + 1) * m * 3];
         let mut pbuf: Vec<(f64, Vector3<f64>)> = Vec::with_capacity(m);
-        for &bb in &order {
+        for &bb in order.iter() {
             let is_root = parent[bb] < 0;
             let h = if is_root {
                 Vector3::zeros()
@@ -1111,5 +1179,76 @@ mod tests {
             d
         )
         .is_err());
+    }
+
+    /// The plan's subtree point lists against the direct definition (a point is listed for
+    /// bone `a` when a positive weight sits on a bone of `a`'s subtree), on a branched tree
+    /// with two weights a point, some zero.
+    #[test]
+    fn sweep_plan_lists_the_points_of_every_subtree() {
+        let parent = [-1i64, 0, 1, 0, 3, 3];
+        let (b, m, k) = (6usize, 50usize, 2usize);
+        let mut idx = Vec::new();
+        let mut w = Vec::new();
+        for mm in 0..m {
+            idx.extend_from_slice(&[(mm * 7) % b, (mm * 3 + 1) % b]);
+            w.extend_from_slice(&[if mm % 5 == 0 { 0.0 } else { 0.6 }, 0.4]);
+        }
+        let sw = SparseWeights {
+            idx: &idx,
+            w: &w,
+            k,
+        };
+        let plan = SweepPlan::new(&parent, sw, Dims { f: 1, m, b }).unwrap();
+        let ancestor = |a_: usize, j: usize| {
+            let mut cur = j as i64;
+            while cur >= 0 {
+                if cur as usize == a_ {
+                    return true;
+                }
+                cur = parent[cur as usize];
+            }
+            false
+        };
+        for a_ in 0..b {
+            let direct: Vec<usize> = (0..m)
+                .filter(|&mm| (0..k).any(|s| w[mm * k + s] > 0.0 && ancestor(a_, idx[mm * k + s])))
+                .collect();
+            assert_eq!(plan.sub_points[a_], direct, "bone {a_}");
+        }
+        // a plan for other points is refused, not misread
+        let (q, mut r, mut t, idx2, w2, d) = chain(1);
+        let sw2 = SparseWeights {
+            idx: &idx2,
+            w: &w2,
+            k: 2,
+        };
+        let a = vec![1.0; d.m];
+        let z = skin(&q, sw2, &r, &t, d).unwrap();
+        let rp = r.clone();
+        let other = SweepPlan::new(&[-1, 0], sw2, d).unwrap();
+        let wrong = SweepPlan {
+            m: d.m + 1,
+            ..other.clone()
+        };
+        let call = |plan: &SweepPlan, r: &mut [f64], t: &mut [f64]| {
+            sweep_with_plan(
+                plan,
+                &q,
+                sw2,
+                r,
+                t,
+                &a,
+                &z,
+                &rp,
+                &[-1, 0],
+                &[0.5, 0.0, 0.0, 0.5, 0.0, 0.0],
+                0.0,
+                &[],
+                d,
+            )
+        };
+        assert!(call(&wrong, &mut r, &mut t).is_err());
+        assert!(call(&other, &mut r, &mut t).is_ok());
     }
 }

@@ -175,6 +175,7 @@ pub fn track_frame(
     let offsets = [0usize, v.len() / 3];
     let dims = Dims { f: 1, m, b };
     let mut xn = vec![0.0; 3 * m];
+    let plan = lbs::SweepPlan::new(model.parent, sw, dims)?;
     for it in 0..s.iterations {
         let normals = match model.normals {
             Some((rn, vn, kappa)) => {
@@ -218,7 +219,8 @@ pub fn track_frame(
             // the sweep's translations are not used: the joints hold, and the root moves below
             let root_t = [t[3 * root], t[3 * root + 1], t[3 * root + 2]];
             let mut t_sweep = t.clone();
-            lbs::sweep_articulated(
+            lbs::sweep_with_plan(
+                &plan,
                 model.q,
                 sw,
                 &mut r,
