@@ -38,6 +38,16 @@ the paired sign-flip p-value over the sequences (:func:`benchmarks.bench_suite.s
 
     python -m benchmarks.bench_generalise --set check '{}' '{"joints": {"track_sweeps": 1}}' \\
         --seeds 2
+
+``--output-stage`` studies the output stage alone (the joint selection, the output tree, the
+depth pass: the parameters of :data:`OUTPUT_STAGE_FIELDS`; a variant that changes anything
+else is refused). Steps 1-3 run once per sequence and seed with the defaults, their outputs
+(:func:`output_stage_inputs`, about 20 MB a run) are cached in ``--cache``/stage-inputs under
+the pipeline's code, and each variant reruns the output stage only, about 2 s a run instead of
+about a minute, with the joints a whole run of that variant gives (tests/test_bench_generalise.py)::
+
+    python -m benchmarks.bench_generalise --output-stage --seeds 2 '{}' \\
+        '{"structure": {"joint_penalty": 1}}'
 """
 
 from __future__ import annotations
@@ -62,7 +72,7 @@ from benchmarks.bench_suite import sign_flip_p
 from pointrig.config import PipelineConfig, RegistrationConfig, apply_overrides
 from pointrig.errors import PointrigError
 from pointrig.evaluate import evaluate, scorable_joints, subject_size
-from pointrig.pipeline import extract
+from pointrig.pipeline import ExtractResult, extract, output_skeleton
 from pointrig.sequence import PointSequence
 
 DEFAULT_CACHE = Path.home() / ".cache" / "pointrig-corpus"
@@ -208,6 +218,113 @@ def run_pipeline(name: str, seq_path: str, variant: str, out_path: str, seed: in
     return out
 
 
+#: The parameters that only the output stage reads (:func:`pointrig.pipeline.output_skeleton`):
+#: with ``--output-stage`` a variant may change these and nothing else.
+OUTPUT_STAGE_FIELDS = {
+    "structure": ("joint_penalty", "joint_frames", "leaf_root", "centre_tolerance"),
+    "joints": ("joint_depth", "depth_frames", "bone_twist", "twist_min_elongation",
+               "twist_min_roll_deg"),
+}
+
+
+def check_output_stage_variant(variant: str) -> None:
+    """Raise ``ValueError`` unless ``variant`` differs from the defaults only in
+    :data:`OUTPUT_STAGE_FIELDS` (so steps 1-3 of the defaults are its steps 1-3 too)."""
+    cfg, base = make_config(variant), make_config("{}")
+    for f in dataclasses.fields(PipelineConfig):
+        got, ref = getattr(cfg, f.name), getattr(base, f.name)
+        free = set(OUTPUT_STAGE_FIELDS.get(f.name, ()))
+        if not dataclasses.is_dataclass(got):
+            if got != ref:
+                raise ValueError(f"{f.name} is not an output-stage parameter")
+            continue
+        for g in dataclasses.fields(got):
+            if g.name not in free and getattr(got, g.name) != getattr(ref, g.name):
+                raise ValueError(f"[{f.name}] {g.name} is not an output-stage parameter "
+                                 "(without --output-stage the variant runs whole)")
+
+
+def output_stage_inputs(res: ExtractResult) -> dict[str, np.ndarray]:
+    """What :func:`pointrig.pipeline.extract` passed to its output stage, from its result:
+    rest points ``(M, 3)``, labels ``(M,)``, bone tree ``(B,)``, rest joints ``(B, 3)``,
+    ``R (F, B, 3, 3)``, ``T (F, B, 3)``, weights ``(M, B)``, camera ``(3,)`` (``(0,)`` without
+    one), the cleaned frames stacked ``(sum N_t, 3)`` with their counts ``(F,)`` and the final
+    registration ``(F, M, 3)`` (metres)."""
+    jr, st = res.joints, res.structure
+    final = res.refined_registration or res.registration
+    cam = st.view_camera
+    return {"rest_points": res.registration.rest_points,
+            "labels": np.argmax(jr.weights, axis=1), "bone_parent": st.bone_parent,
+            "joints_rest": jr.joints_rest, "R": jr.R, "T": jr.T, "weights": jr.weights,
+            "view_camera": np.zeros(0) if cam is None else np.asarray(cam, dtype=float),
+            "frames": np.concatenate([np.asarray(f, dtype=np.float64) for f in res.frames]),
+            "counts": np.array([len(f) for f in res.frames], dtype=np.int64),
+            "registered": final.points}
+
+
+def rerun_output_stage(inputs: dict[str, np.ndarray], config: PipelineConfig) -> np.ndarray:
+    """The output joints ``(F, P, 3)`` (metres) of the output stage run with ``config`` on
+    :func:`output_stage_inputs` (the same as a whole run's when ``config`` changes only
+    :data:`OUTPUT_STAGE_FIELDS`)."""
+    frames = np.split(inputs["frames"], np.cumsum(inputs["counts"])[:-1])
+    cam = inputs["view_camera"]
+    sk = output_skeleton(inputs["rest_points"], inputs["labels"], inputs["bone_parent"],
+                         inputs["joints_rest"], inputs["R"], inputs["T"], inputs["weights"],
+                         config, cam if len(cam) else None,
+                         observed=(frames, inputs["registered"]))
+    return sk.joint_positions
+
+
+def _save_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp.npz")
+    np.savez(tmp, **arrays)
+    tmp.replace(path)
+
+
+def run_output_stage(name: str, seq_path: str, seed: int, inputs_path: str,
+                     runs: list[tuple[str, str]]) -> list[str]:
+    """``--output-stage``: steps 1-3 of the defaults (seeds raised by ``seed``) on one cached
+    sequence, their output-stage inputs saved to ``inputs_path`` (reused when there), then the
+    output stage of every ``(variant, out_path)`` in ``runs``, saved as
+    :func:`run_pipeline` saves a run (its seconds those of the output stage). Returns each
+    run's error (``""`` if none)."""
+    ip = Path(inputs_path)
+    if ip.exists():
+        with np.load(ip) as z:
+            inputs: dict[str, np.ndarray] | None = {k: z[k] for k in z.files}
+        error = ""
+    else:
+        data = load_cached(Path(seq_path))
+        ps = PointSequence(data["frames"], f"corpus:{name}",
+                           [f"frame_{t:04d}" for t in range(len(data["frames"]))], "memory")
+        try:
+            inputs = output_stage_inputs(extract(ps, make_config("{}", seed), None,
+                                                 pictures=False))
+            _save_npz(ip, inputs)
+            error = ""
+        except PointrigError as exc:
+            inputs, error = None, f"{type(exc).__name__}: {exc}"
+    errors = []
+    for variant, out_path in runs:
+        t0, c0 = time.perf_counter(), time.process_time()
+        err = error
+        joints = np.zeros((0, 0, 3))
+        if inputs is not None:
+            try:
+                joints = rerun_output_stage(inputs, make_config(variant, seed))
+            except PointrigError as exc:
+                err = f"{type(exc).__name__}: {exc}"
+        if inputs is None or err:
+            joints = np.zeros((len(load_cached(Path(seq_path))["frames"]), 0, 3))
+        _save_npz(Path(out_path), {"joints": np.asarray(joints, dtype=np.float64),
+                                   "error": np.array(err),
+                                   "seconds": np.float64(time.perf_counter() - t0),
+                                   "cpu_seconds": np.float64(time.process_time() - c0)})
+        errors.append(err)
+    return errors
+
+
 def score(name: str, seq_path: str, pred_path: str) -> dict[str, Any]:
     """Score a saved run against its sequence's ground truth (a row of the CSV, less the
     variant label)."""
@@ -249,6 +366,13 @@ def _task(args: tuple[str, str, str, str, int]) -> tuple[str, str]:
     except Exception:  # noqa: BLE001 - a bug, not a pipeline error: report it, run the rest
         return name, traceback.format_exc(limit=3).strip().splitlines()[-1]
     return name, str(out["error"])
+
+
+def _output_task(args: tuple[str, str, int, str, list[tuple[str, str]]]) -> list[str]:
+    try:
+        return run_output_stage(*args)
+    except Exception:  # noqa: BLE001 - a bug, not a pipeline error: report it, run the rest
+        return [traceback.format_exc(limit=3).strip().splitlines()[-1]] * len(args[4])
 
 
 def _synth_task(args: tuple[str, int, str, str]) -> tuple[str, str, float]:
@@ -383,12 +507,17 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--rerun", action="store_true", help="ignore cached scores")
     ap.add_argument("--seeds", type=int, default=1,
                     help="runs per variant and sequence, seeds raised by 0 .. K-1")
+    ap.add_argument("--output-stage", action="store_true",
+                    help="steps 1-3 of the defaults once per sequence and seed (inputs cached), "
+                         "then each variant's output stage only")
     a = ap.parse_args(argv)
     if a.frames < 2 or a.jobs < 1 or a.seeds < 1:
         ap.error("--frames must be >= 2, --jobs and --seeds >= 1")
     try:
         for v in a.variants:
             make_config(v)
+            if a.output_stage:
+                check_output_stage_variant(v)
     except (ValueError, TypeError, PointrigError) as exc:
         ap.error(f"bad variant: {exc}")
     pool = {"tuning": corpus.TUNING, "check": corpus.CHECK,
@@ -432,15 +561,29 @@ def main(argv: list[str]) -> int:
         key: dict[str, Any] = {"v": a.variants[v].strip(), "code": code}
         if sd:
             key["seed"] = sd
+        if a.output_stage:
+            key["stage"] = "output"
         run_dirs[(v, sd)] = a.cache / "runs" / hashlib.sha1(
             json.dumps(key).encode()).hexdigest()[:16]
     # sequence by sequence, so that each one's line is printed as soon as its runs are done
+    # --output-stage: one task per sequence and seed, its variants' output stages together
+    stage_tasks: list[tuple[int, list[int], tuple[str, str, int, str, list[tuple[str, str]]]]] = []
     for n in names:
         for v, sd in keys:
             rp = run_dirs[(v, sd)] / f"{Path(paths[n]).stem}.npz"
             pred_paths[(v, sd, n)] = str(rp)
-            if not rp.exists() or a.rerun:
+            if (not rp.exists() or a.rerun) and not a.output_stage:
                 tasks.append(((v, sd), (n, paths[n], a.variants[v], str(rp), sd)))
+        for sd in seeds if a.output_stage else ():
+            todo = [v for v in range(len(a.variants))
+                    if not Path(pred_paths[(v, sd, n)]).exists() or a.rerun]
+            if todo:
+                idir = a.cache / "stage-inputs" / hashlib.sha1(
+                    json.dumps({"code": code, "seed": sd}).encode()).hexdigest()[:16]
+                stage_tasks.append((sd, todo, (
+                    n, paths[n], sd, str(idir / f"{Path(paths[n]).stem}.npz"),
+                    [(a.variants[v], pred_paths[(v, sd, n)]) for v in todo])))
+                tasks.extend(((v, sd), (n,)) for v in todo)
     pending = {(v, sd, t[0]) for (v, sd), t in tasks}
     print(f"{'sequence':<24} {'set':<6} {'cat':<10}" +
           "".join(f"{'v' + str(v) + ': rec/prec out/sc  cm far  time':>34}"
@@ -477,7 +620,13 @@ def main(argv: list[str]) -> int:
         show_ready()
 
     show_ready()
-    if a.jobs > 1 and tasks:
+    if a.output_stage:
+        with ProcessPoolExecutor(a.jobs) as ex:
+            sfuts = [(sd, todo, t[0], ex.submit(_output_task, t)) for sd, todo, t in stage_tasks]
+            for sd, todo, n, f in sfuts:
+                for v, err in zip(todo, f.result()):
+                    finished(v, sd, n, err)
+    elif a.jobs > 1 and tasks:
         with ProcessPoolExecutor(a.jobs) as ex:
             futs = [(k, ex.submit(_task, t)) for k, t in tasks]
             for (v, sd), f in futs:

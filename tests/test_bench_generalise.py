@@ -61,3 +61,38 @@ def test_paired_line_reports_the_mean_difference_and_its_exact_p() -> None:
     assert line.startswith(f"F1 {d.mean():+.3f} (p {hits / 32:.2f})")
     assert "joints -1.0 (p 0.06)" in line and "norm cm +0.50 (p 0.06)" in line
     assert line.endswith(f"F1 up on {int((d > 0).sum())}, down on {int((d < 0).sum())} of 5")
+
+
+def test_output_stage_variants_may_change_output_parameters_only() -> None:
+    """``--output-stage`` reuses the defaults' steps 1-3, so a variant is refused when it
+    changes any parameter those steps read (a seed, a tracker setting)."""
+    bg.check_output_stage_variant('{"structure": {"joint_penalty": 1, "leaf_root": "keep"}, '
+                                  '"joints": {"joint_depth": "off"}}')
+    for bad in ('{"joints": {"track_sweeps": 1}}', '{"structure": {"seed": 1}}',
+                '{"registration": {"refine_rounds": 0}}', "paper"):
+        with pytest.raises(ValueError, match="not an output-stage parameter"):
+            bg.check_output_stage_variant(bad)
+
+
+def test_the_output_stage_rerun_gives_a_whole_runs_joints(tmp_path) -> None:
+    """The oracle is a whole run: steps 1-3 of the defaults saved (through an ``.npz``, as the
+    cache holds them), then the output stage of a variant, give exactly the joints of
+    ``extract`` run whole with that variant (here the joint selection off, which changes the
+    skeleton), and with the defaults those of the defaults' run."""
+    from pointrig.data import demo_path
+    from pointrig.io import read_sequence
+    from pointrig.pipeline import extract
+
+    seq = read_sequence(demo_path() / "frames", stop=12)
+    base = extract(seq, bg.make_config("{}"), None, pictures=False)
+    path = tmp_path / "inputs.npz"
+    bg._save_npz(path, bg.output_stage_inputs(base))
+    with np.load(path) as z:
+        inputs = {k: z[k] for k in z.files}
+    np.testing.assert_array_equal(bg.rerun_output_stage(inputs, bg.make_config("{}")),
+                                  base.skeleton.joint_positions)
+    variant = '{"structure": {"joint_penalty": 0}}'
+    whole = extract(seq, bg.make_config(variant), None, pictures=False)
+    again = bg.rerun_output_stage(inputs, bg.make_config(variant))
+    assert again.shape != base.skeleton.joint_positions.shape
+    np.testing.assert_array_equal(again, whole.skeleton.joint_positions)
