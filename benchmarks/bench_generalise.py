@@ -43,7 +43,8 @@ the paired sign-flip p-value over the sequences (:func:`benchmarks.bench_suite.s
 depth pass: the parameters of :data:`OUTPUT_STAGE_FIELDS`; a variant that changes anything
 else is refused). Steps 1-3 run once per sequence and seed with the defaults, their outputs
 (:func:`output_stage_inputs`, about 20 MB a run) are cached in ``--cache``/stage-inputs under
-the pipeline's code, and each variant reruns the output stage only, about 2 s a run instead of
+the code of steps 1-3 (all but :data:`OUTPUT_STAGE_MODULES`, so a change of the output stage
+reuses them), and each variant reruns the output stage only, about 2 s a run instead of
 about a minute, with the joints a whole run of that variant gives (tests/test_bench_generalise.py)::
 
     python -m benchmarks.bench_generalise --output-stage --seeds 2 '{}' \\
@@ -91,13 +92,20 @@ def _sha1_files(paths: list[Path]) -> str:
     return h.hexdigest()
 
 
-def code_fingerprint() -> str:
+#: The modules only the output stage runs (:func:`pointrig.pipeline.output_skeleton`): the
+#: cached steps 1-3 of ``--output-stage`` do not depend on them.
+OUTPUT_STAGE_MODULES = ("output.py", "selection.py")
+
+
+def code_fingerprint(steps_1_to_3: bool = False) -> str:
     """SHA-1 of the pipeline's code: pointrig's Python files and compiled core, less the
     scoring (evaluate.py) and the synthesis (synth/), which do not change its output (runs are
-    cached under it; scores are computed afresh each time)."""
+    cached under it; scores are computed afresh each time). ``steps_1_to_3``: also less
+    :data:`OUTPUT_STAGE_MODULES` (the key of ``--output-stage``'s cached steps 1-3)."""
     root = Path(pointrig.__file__).resolve().parent
+    skip = {"evaluate.py"} | (set(OUTPUT_STAGE_MODULES) if steps_1_to_3 else set())
     files = [p for p in root.rglob("*.py")
-             if p.name != "evaluate.py" and "synth" not in p.relative_to(root).parts]
+             if p.name not in skip and "synth" not in p.relative_to(root).parts]
     files += list(root.glob("_core*.so")) + list(root.glob("_core*.pyd"))
     return _sha1_files(files)
 
@@ -535,6 +543,7 @@ def main(argv: list[str]) -> int:
     if not names:
         return 0
     synth_code, code = synth_fingerprint(), code_fingerprint()
+    code_1_3 = code_fingerprint(steps_1_to_3=True)
     t_start = time.perf_counter()
     paths: dict[str, str] = {}
     synth_secs = 0.0
@@ -579,7 +588,7 @@ def main(argv: list[str]) -> int:
                     if not Path(pred_paths[(v, sd, n)]).exists() or a.rerun]
             if todo:
                 idir = a.cache / "stage-inputs" / hashlib.sha1(
-                    json.dumps({"code": code, "seed": sd}).encode()).hexdigest()[:16]
+                    json.dumps({"code": code_1_3, "seed": sd}).encode()).hexdigest()[:16]
                 stage_tasks.append((sd, todo, (
                     n, paths[n], sd, str(idir / f"{Path(paths[n]).stem}.npz"),
                     [(a.variants[v], pred_paths[(v, sd, n)]) for v in todo])))

@@ -96,3 +96,21 @@ def test_the_output_stage_rerun_gives_a_whole_runs_joints(tmp_path) -> None:
     again = bg.rerun_output_stage(inputs, bg.make_config(variant))
     assert again.shape != base.skeleton.joint_positions.shape
     np.testing.assert_array_equal(again, whole.skeleton.joint_positions)
+
+
+def test_the_cached_steps_do_not_depend_on_the_output_stage_modules() -> None:
+    """``--output-stage`` keys its cached steps 1-3 on the code less the output-stage modules,
+    which holds while only the pipeline's output stage imports them (read from the sources),
+    and the key differs from the whole pipeline's."""
+    import re
+    from pathlib import Path
+
+    import pointrig
+
+    root = Path(pointrig.__file__).resolve().parent
+    stems = [m.removesuffix(".py") for m in bg.OUTPUT_STAGE_MODULES]
+    pattern = re.compile(r"from \.(" + "|".join(stems) + r") import|import pointrig\.("
+                         + "|".join(stems) + r")\b")
+    importers = {p.name for p in root.rglob("*.py") if pattern.search(p.read_text("utf-8"))}
+    assert importers <= {"pipeline.py", *bg.OUTPUT_STAGE_MODULES}
+    assert bg.code_fingerprint(steps_1_to_3=True) != bg.code_fingerprint()

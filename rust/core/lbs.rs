@@ -19,7 +19,8 @@
 //! * [`sweep_paper`]: Eqs. 23-26, one bone at a time in every frame, with the registration
 //!   (inside `a, z`), joint (alpha) and small-motion (gamma) terms.
 //! * [`sweep_articulated`]: the joint-constrained variant (our deviation, docs/joints.md): the
-//!   bone rotates about its head joint and carries its subtree along.
+//!   bone rotates about its head joint and carries its subtree along; [`sweep_with_plan`] is
+//!   the same with its [`SweepPlan`] (order, subtrees, their points) built once by the caller.
 //!
 //! Every frame is independent given W and the joints, so the sweeps run in parallel over
 //! frames (rayon); `fit_weights` runs in parallel over points.
