@@ -199,6 +199,20 @@ def make_config(variant: str, seed: int = 0) -> PipelineConfig:
     return cfg
 
 
+def _sequence(name: str, data: dict[str, Any]) -> PointSequence:
+    """A cached sequence's frames as the in-memory :class:`PointSequence` the runs read."""
+    return PointSequence(data["frames"], f"corpus:{name}",
+                         [f"frame_{t:04d}" for t in range(len(data["frames"]))], "memory")
+
+
+def _save_npz(path: Path, arrays: dict[str, Any]) -> None:
+    """``arrays`` to ``path`` through a temporary file (no half-written file is left)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp.npz")
+    np.savez(tmp, **arrays)
+    tmp.replace(path)
+
+
 def run_pipeline(name: str, seq_path: str, variant: str, out_path: str, seed: int = 0
                  ) -> dict[str, Any]:
     """Run the pipeline on one cached sequence (with the variant's seeds raised by ``seed``,
@@ -206,8 +220,7 @@ def run_pipeline(name: str, seq_path: str, variant: str, out_path: str, seed: in
     took to ``out_path`` (an ``.npz``); returns what was saved."""
     data = load_cached(Path(seq_path))
     cfg = make_config(variant, seed)
-    ps = PointSequence(data["frames"], f"corpus:{name}",
-                       [f"frame_{t:04d}" for t in range(len(data["frames"]))], "memory")
+    ps = _sequence(name, data)
     t0, c0 = time.perf_counter(), time.process_time()
     joints = np.zeros((len(data["frames"]), 0, 3))
     error = ""
@@ -218,11 +231,7 @@ def run_pipeline(name: str, seq_path: str, variant: str, out_path: str, seed: in
     out = {"joints": np.asarray(joints, dtype=np.float64), "error": np.array(error),
            "seconds": np.float64(time.perf_counter() - t0),
            "cpu_seconds": np.float64(time.process_time() - c0)}
-    op = Path(out_path)
-    op.parent.mkdir(parents=True, exist_ok=True)
-    tmp = op.with_suffix(".tmp.npz")
-    np.savez(tmp, **out)
-    tmp.replace(op)
+    _save_npz(Path(out_path), out)
     return out
 
 
@@ -283,13 +292,6 @@ def rerun_output_stage(inputs: dict[str, np.ndarray], config: PipelineConfig) ->
     return sk.joint_positions
 
 
-def _save_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp.npz")
-    np.savez(tmp, **arrays)
-    tmp.replace(path)
-
-
 def run_output_stage(name: str, seq_path: str, seed: int, inputs_path: str,
                      runs: list[tuple[str, str]]) -> list[str]:
     """``--output-stage``: steps 1-3 of the defaults (seeds raised by ``seed``) on one cached
@@ -298,33 +300,31 @@ def run_output_stage(name: str, seq_path: str, seed: int, inputs_path: str,
     :func:`run_pipeline` saves a run (its seconds those of the output stage). Returns each
     run's error (``""`` if none)."""
     ip = Path(inputs_path)
+    inputs: dict[str, np.ndarray] | None = None
+    error = ""
     if ip.exists():
         with np.load(ip) as z:
-            inputs: dict[str, np.ndarray] | None = {k: z[k] for k in z.files}
-        error = ""
+            inputs = {k: z[k] for k in z.files}
+        n_frames = len(inputs["counts"])
     else:
         data = load_cached(Path(seq_path))
-        ps = PointSequence(data["frames"], f"corpus:{name}",
-                           [f"frame_{t:04d}" for t in range(len(data["frames"]))], "memory")
+        n_frames = len(data["frames"])
         try:
-            inputs = output_stage_inputs(extract(ps, make_config("{}", seed), None,
-                                                 pictures=False))
+            inputs = output_stage_inputs(extract(_sequence(name, data), make_config("{}", seed),
+                                                 None, pictures=False))
             _save_npz(ip, inputs)
-            error = ""
         except PointrigError as exc:
-            inputs, error = None, f"{type(exc).__name__}: {exc}"
+            error = f"{type(exc).__name__}: {exc}"
     errors = []
     for variant, out_path in runs:
         t0, c0 = time.perf_counter(), time.process_time()
         err = error
-        joints = np.zeros((0, 0, 3))
+        joints = np.zeros((n_frames, 0, 3))  # no joints when a run fails, as run_pipeline
         if inputs is not None:
             try:
                 joints = rerun_output_stage(inputs, make_config(variant, seed))
             except PointrigError as exc:
                 err = f"{type(exc).__name__}: {exc}"
-        if inputs is None or err:
-            joints = np.zeros((len(load_cached(Path(seq_path))["frames"]), 0, 3))
         _save_npz(Path(out_path), {"joints": np.asarray(joints, dtype=np.float64),
                                    "error": np.array(err),
                                    "seconds": np.float64(time.perf_counter() - t0),

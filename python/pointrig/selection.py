@@ -123,16 +123,15 @@ def select_joints(frames: Sequence[np.ndarray], rest_points: np.ndarray, labels:
     fidx = np.unique(np.linspace(0, F - 1, min(F, max(1, max_frames))).round().astype(int))
     X = [np.asarray(frames[t], dtype=float) for t in fidx]
     n = sum(len(x) for x in X)
-    # residual of every raw point under the full tree, and the bone of its nearest posed point
-    d2, near, seen = [], [], []
+    # residual of every raw point under the full tree, the bone of its nearest posed point, and
+    # the weight of each frame's raw points: the distinct rest points they are nearest to over
+    # their number (the observations the model can tell apart; the module docstring)
+    d2, near, wt = [], [], []
     for i, t in enumerate(fidx):
         d, j = cKDTree(_posed(Q, labels, R[t], T[t])).query(X[i])
         d2.append(d ** 2)
         near.append(labels[j])
-        seen.append(j)
-    # weight of each frame's raw points: the distinct rest points they see over their number
-    # (the observations the model can tell apart; the module docstring)
-    wt = np.array([len(np.unique(j)) / max(len(j), 1) for j in seen])
+        wt.append(len(np.unique(j)) / max(len(j), 1))
     resid = np.sqrt(np.concatenate(d2)) if n else np.zeros(1)
     cap = 3.0 * float(np.median(resid)) / 0.6745
     if penalty_scale <= 0 or B < 2 or n == 0 or cap <= 0:
