@@ -24,9 +24,11 @@ pipeline's code (pointrig's Python files and compiled core, less evaluate.py and
 re-run of an unchanged variant costs nothing (``--rerun`` runs again), and every run is scored
 afresh, so a change of the scoring needs no run.
 
-Means: recall, precision, joints out, the far share and seconds over every sequence (a run
-that fails counts as recall 0 and no joints); the normalised error over the sequences where the
-run matched a joint.
+Means: recall, precision, joints out, the far share, the duplicates and near misses a sequence
+(:attr:`pointrig.evaluate.EvalReport.duplicate`, ``near_miss``: extra joints at a matched
+joint, joints missed but found within 1.5 times the threshold) and seconds over every sequence
+(a run that fails counts as recall 0 and no joints); the normalised error over the sequences
+where the run matched a joint.
 
 A single run is noisy: a last-bit change upstream (another CPU's vector code, a reordered sum)
 flips discrete choices (a cluster boundary, a merge) and moves a set's means by a few
@@ -80,8 +82,8 @@ DEFAULT_CACHE = Path.home() / ".cache" / "pointrig-corpus"
 #: Columns of the CSV, one row per run.
 CSV_FIELDS = ("variant", "seed", "set", "sequence", "subject", "category", "group", "camera",
               "distance", "frames", "recall", "precision", "n_pred", "n_scorable", "n_matched",
-              "normalized_error_cm", "raw_error_cm", "far_fraction", "n_far", "subject_size_m",
-              "seconds", "cpu_seconds", "error")
+              "normalized_error_cm", "raw_error_cm", "far_fraction", "n_far", "n_duplicate",
+              "n_near_miss", "subject_size_m", "seconds", "cpu_seconds", "error")
 
 
 def _sha1_files(paths: list[Path]) -> str:
@@ -355,15 +357,16 @@ def score(name: str, seq_path: str, pred_path: str) -> dict[str, Any]:
         row.update({"recall": 0.0, "precision": float("nan"), "n_pred": 0,
                     "n_scorable": int(mask.sum()), "n_matched": 0,
                     "normalized_error_cm": float("nan"), "raw_error_cm": float("nan"),
-                    "far_fraction": float("nan"), "n_far": 0,
-                    "subject_size_m": subject_size(data["gt_joints"], ev["surface"])})
+                    "far_fraction": float("nan"), "n_far": 0, "n_duplicate": 0,
+                    "n_near_miss": 0, "subject_size_m": subject_size(data["gt_joints"], ev["surface"])})
         return row
     rep = evaluate(pred, data["gt_joints"], data["parents"], **ev)
     row.update({"recall": rep.recall, "precision": rep.precision, "n_pred": rep.n_pred,
                 "n_scorable": rep.n_scorable, "n_matched": rep.n_matched,
                 "normalized_error_cm": 100 * rep.normalized_error,
                 "raw_error_cm": 100 * rep.raw_error, "far_fraction": rep.far_fraction,
-                "n_far": rep.n_far, "subject_size_m": rep.subject_size})
+                "n_far": rep.n_far, "n_duplicate": rep.n_duplicate,
+                "n_near_miss": rep.n_near_miss, "subject_size_m": rep.subject_size})
     return row
 
 
@@ -425,6 +428,8 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, float]:
         "normalized_error_cm": float(np.mean(ne)) if ne else float("nan"),
         "far_fraction": float(np.mean([r["far_fraction"] if np.isfinite(r["far_fraction"])
                                        else 0.0 for r in ok])),
+        "n_duplicate": float(np.mean([r.get("n_duplicate", np.nan) for r in ok])),
+        "n_near_miss": float(np.mean([r.get("n_near_miss", np.nan) for r in ok])),
         "seconds": float(np.sum([r["seconds"] for r in ok])),
         "cpu_seconds": float(np.sum([r.get("cpu_seconds", np.nan) for r in ok])),
         "failed": sum(bool(r.get("error")) for r in ok),
@@ -432,7 +437,8 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, float]:
 
 
 NUMERIC = ("recall", "precision", "n_pred", "n_scorable", "n_matched", "normalized_error_cm",
-           "raw_error_cm", "far_fraction", "n_far", "subject_size_m", "seconds", "cpu_seconds")
+           "raw_error_cm", "far_fraction", "n_far", "n_duplicate", "n_near_miss",
+           "subject_size_m", "seconds", "cpu_seconds")
 
 
 def seed_mean(rows: list[dict[str, Any] | None]) -> dict[str, Any] | None:
@@ -497,6 +503,7 @@ def _summary_line(label: str, s: dict[str, float]) -> str:
     return (f"{label:<30} n {s['n']:>2}  recall {s['recall']:.3f}  precision {s['precision']:.3f}"
             f"  out/scored {s['n_pred']:5.1f}/{s['n_scorable']:4.1f}  norm "
             f"{s['normalized_error_cm']:4.2f} cm  far {100 * s['far_fraction']:4.1f} %  "
+            f"dup {s['n_duplicate']:3.1f}  near miss {s['n_near_miss']:3.1f}  "
             f"{s['seconds']:5.0f} s ({s['cpu_seconds']:5.0f} s CPU)"
             + (f"  failed {s['failed']}" if s["failed"] else ""))
 

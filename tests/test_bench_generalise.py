@@ -15,7 +15,8 @@ from benchmarks import bench_generalise as bg
 def _row(recall: float, precision: float, n_pred: float, err: float) -> dict:
     return {"recall": recall, "precision": precision, "n_pred": n_pred, "n_scorable": 10,
             "n_matched": 5, "normalized_error_cm": err, "raw_error_cm": err,
-            "far_fraction": 0.0, "n_far": 0, "subject_size_m": 1.7, "seconds": 1.0,
+            "far_fraction": 0.0, "n_far": 0, "n_duplicate": 1, "n_near_miss": 0,
+            "subject_size_m": 1.7, "seconds": 1.0,
             "cpu_seconds": 2.0, "error": "", "group": "animal"}
 
 

@@ -457,6 +457,27 @@ def test_far_joints_hand_built_case():
                     far_fraction=0.2).far.tolist() == [False, True, False, False]
 
 
+def test_duplicates_and_near_misses_hand_built_case():
+    # three skinned joints, threshold 10 cm (near miss below 15 cm); two static frames
+    g0 = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    p0 = np.array([g0[0] + [0.02, 0, 0],   # matches joint 0
+                   g0[0] + [0, 0.05, 0],   # a second joint at joint 0: a duplicate
+                   g0[1] + [0, 0.12, 0],   # 12 cm from joint 1: joint 1 is a near miss
+                   g0[2] + [0, 0.5, 0]])   # 50 cm from joint 2: joint 2 is simply missed
+    rep = evaluate(np.stack([p0, p0]), np.stack([g0, g0]), np.array([-1, 0, 0]),
+                   skinned=np.ones(3, dtype=bool), threshold=0.1)
+    assert rep.n_matched == 1 and [r.matched for r in rep.rows] == [0, -1, -1]
+    assert rep.duplicate.tolist() == [False, True, False, False]
+    assert rep.near_miss.tolist() == [False, True, False]
+    assert rep.n_duplicate == 1 and rep.n_near_miss == 1
+    assert rep.to_dict()["n_near_miss"] == 1
+    assert "duplicates 1   near misses 1" in rep.format_table()
+    # the factor is a parameter: at 1.1 x the threshold joint 1 is not a near miss
+    assert evaluate(np.stack([p0, p0]), np.stack([g0, g0]), np.array([-1, 0, 0]),
+                    skinned=np.ones(3, dtype=bool), threshold=0.1,
+                    near_miss_factor=1.1).n_near_miss == 0
+
+
 def test_far_joints_against_brute_force():
     rng = np.random.default_rng(3)
     pred = rng.normal(size=(4, 7, 3))

@@ -49,6 +49,13 @@ static joints included), is at least ``far_fraction * s`` (default 10 %). Such a
 where the source rig has no joint at all; ``EvalReport.far_fraction`` is their share of the
 predicted joints.
 
+**Duplicates and near misses** (diagnostics; they change no score): an unmatched predicted
+joint is a *duplicate* when it lies within the threshold of a scorable joint that another
+predicted joint matched (two joints where the rig has one); a scorable joint left unmatched is a
+*near miss* when the nearest predicted joint is within ``near_miss_factor`` (default 1.5) times
+the threshold (found, but placed too far: 8-12 % of the size by default). They tell a loss of
+precision by extra joints at real joints, and a loss of recall by placement, from the rest.
+
 **Pivot error** (a diagnostic; it changes no score): with the rig's bone transforms, each
 joint's distance from where its part turns against its reference part (:func:`pivot_errors`).
 A rig may put a joint away from that point: at the end of a skinless bone that holds the part
@@ -74,7 +81,7 @@ from .errors import ConfigError, InputError
 __all__ = ["EvalReport", "JointRow", "evaluate", "evaluate_files", "match_pairs", "pair_errors",
            "normalized_offsets", "pivot_errors", "scorable_joints", "far_joints",
            "subject_size", "load_prediction", "SWING_FRACTION", "DUPLICATE_FRACTION",
-           "THRESHOLD_FRACTION", "SWING_SOURCES", "FAR_FRACTION"]
+           "THRESHOLD_FRACTION", "SWING_SOURCES", "FAR_FRACTION", "NEAR_MISS_FACTOR"]
 
 #: Matching threshold as a fraction of the subject size.
 THRESHOLD_FRACTION = 0.08
@@ -85,6 +92,9 @@ DUPLICATE_FRACTION = 0.02
 #: A predicted joint at least this fraction of the subject size (mean over frames) from every
 #: ground-truth joint is far (module docstring).
 FAR_FRACTION = 0.10
+#: An unmatched scorable joint with a predicted joint within this times the threshold is a
+#: near miss (a diagnostic).
+NEAR_MISS_FACTOR = 1.5
 #: Minimum surface samples for a part to define a rigid motion.
 MIN_PART_SAMPLES = 3
 
@@ -129,6 +139,22 @@ class EvalReport:
     far: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     #: the distance that makes a predicted joint far, metres
     far_distance: float = float("nan")
+    #: ``(P,)`` bool: unmatched predicted joints within the threshold of a scorable joint
+    #: another predicted joint matched (module docstring)
+    duplicate: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    #: ``(J,)`` bool: unmatched scorable joints with a predicted joint within
+    #: ``near_miss_factor`` times the threshold (module docstring)
+    near_miss: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+
+    @property
+    def n_duplicate(self) -> int:
+        """Number of :attr:`duplicate` predicted joints."""
+        return int(np.sum(self.duplicate))
+
+    @property
+    def n_near_miss(self) -> int:
+        """Number of :attr:`near_miss` scorable joints."""
+        return int(np.sum(self.near_miss))
 
     @property
     def n_far(self) -> int:
@@ -165,7 +191,8 @@ class EvalReport:
         d = {k: clean(getattr(self, k)) for k in (
             "recall", "precision", "raw_error", "normalized_error", "threshold", "subject_size",
             "n_pred", "n_gt", "n_scorable", "n_matched", "n_frames", "swing_source",
-            "n_off_pivot", "n_far", "far_fraction", "far_distance")}
+            "n_off_pivot", "n_far", "far_fraction", "far_distance", "n_duplicate",
+            "n_near_miss")}
         d["joints"] = [{k: clean(v) for k, v in dataclasses.asdict(r).items()} for r in self.rows]
         for j in d["joints"]:
             m = j["matched"]
@@ -182,7 +209,8 @@ class EvalReport:
             + (f"   articulation from {self.swing_source}" if self.swing_source else ""),
             f"recall     {self.recall:.3f}  ({self.n_matched}/{self.n_scorable})"
             + (f"   off-pivot joints {self.n_off_pivot}" if self.n_off_pivot else ""),
-            f"precision  {self.precision:.3f}  ({self.n_matched}/{self.n_pred})",
+            f"precision  {self.precision:.3f}  ({self.n_matched}/{self.n_pred})"
+            f"   duplicates {self.n_duplicate}   near misses {self.n_near_miss}",
             (f"far joints {self.n_far}/{self.n_pred}  (>= {self.far_distance:.3f} m from "
              "every ground-truth joint)"),
             f"raw error         {self.raw_error * cm:7.2f} cm",
@@ -600,7 +628,8 @@ def evaluate(pred_joints: np.ndarray, gt_joints: np.ndarray, gt_parents: np.ndar
              bone_translations: np.ndarray | None = None,
              rest_surface: np.ndarray | None = None,
              swing_source: str = "auto",
-             far_fraction: float = FAR_FRACTION) -> EvalReport:
+             far_fraction: float = FAR_FRACTION,
+             near_miss_factor: float = NEAR_MISS_FACTOR) -> EvalReport:
     """Score predicted joint trajectories against ground truth.
 
     Parameters
@@ -624,6 +653,9 @@ def evaluate(pred_joints: np.ndarray, gt_joints: np.ndarray, gt_parents: np.ndar
     far_fraction
         A predicted joint this fraction of the subject size or more from every ground-truth
         joint is far (:func:`far_joints`; it changes no score).
+    near_miss_factor
+        An unmatched scorable joint with a predicted joint within this times the threshold
+        is a near miss (a diagnostic, as the duplicates; module docstring).
     pred_source, gt_source
         File names used in error messages.
 
@@ -674,6 +706,13 @@ def evaluate(pred_joints: np.ndarray, gt_joints: np.ndarray, gt_parents: np.ndar
     pivot = np.full(J, np.nan)
     if have_surface and source == "bones":
         pivot = pivot_errors(g, parents, bone_rotations, bone_translations, surface_labels)
+    # diagnostics: unmatched predictions at a joint another one matched; unmatched scorable
+    # joints with a prediction just beyond the threshold
+    taken = np.isin(np.arange(P), matched[matched >= 0])
+    col_matched = matched[cols] >= 0
+    duplicate = ~taken & ((cost < tau) & col_matched[None, :]).any(axis=1)
+    near_miss = np.zeros(J, dtype=bool)
+    near_miss[cols] = ~col_matched & (cost.min(axis=0) < near_miss_factor * tau)
     rows = [JointRow(gt_names[j], bool(mask[j]), reasons[j], int(matched[j]), float(raw[j]),
                      float(norm[j]), float(swing[j]), float(pivot[j])) for j in range(J)]
     return EvalReport(
@@ -685,6 +724,7 @@ def evaluate(pred_joints: np.ndarray, gt_joints: np.ndarray, gt_parents: np.ndar
         n_frames=F, scorable=mask, rows=rows, pred_names=pred_names,
         swing_source=source if have_surface else "",
         far=far_joints(p, g, far_fraction * s), far_distance=far_fraction * s,
+        duplicate=duplicate, near_miss=near_miss,
     )
 
 
