@@ -18,9 +18,9 @@ The difference between the last two rows is what a perfect registration would wi
 
 ``--step1 VARIANT ...`` (JSON overrides, as bench_generalise's variants) adds a row per
 variant, the defaults first: step 2 on the first registration (step 1 alone, seed 0, no
-refinement) of that variant, a loop of minutes for a change of step 1 (a whole run of the
-corpus takes an hour a seed); a change found there still has to win in
-:mod:`benchmarks.bench_generalise`::
+refinement) of that variant: a change of step 1 read without step 3 and the refinement, so
+both sets in about the time of one whole run of the variant, on one seed; a change found there
+still has to win in :mod:`benchmarks.bench_generalise`::
 
     python -m benchmarks.bench_tracks --jobs 2 --step1 '{"registration": {"rigid_iterations": 6}}'
 
