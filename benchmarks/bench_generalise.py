@@ -74,7 +74,7 @@ from benchmarks import corpus
 from benchmarks.bench_suite import sign_flip_p
 from pointrig.config import PipelineConfig, RegistrationConfig, apply_overrides
 from pointrig.errors import PointrigError
-from pointrig.evaluate import evaluate, scorable_joints, subject_size
+from pointrig.evaluate import EvalReport, evaluate, scorable_joints, subject_size
 from pointrig.pipeline import ExtractResult, extract, output_skeleton
 from pointrig.sequence import PointSequence
 
@@ -294,6 +294,13 @@ def rerun_output_stage(inputs: dict[str, np.ndarray], config: PipelineConfig) ->
     return sk.joint_positions
 
 
+def stage_inputs_path(cache: Path, seq_path: str, seed: int, code_1_3: str) -> Path:
+    """Where ``--output-stage`` caches the output-stage inputs of one cached sequence and seed,
+    under the code of steps 1-3 (:func:`code_fingerprint` with ``steps_1_to_3``)."""
+    key = hashlib.sha1(json.dumps({"code": code_1_3, "seed": seed}).encode()).hexdigest()[:16]
+    return cache / "stage-inputs" / key / f"{Path(seq_path).stem}.npz"
+
+
 def run_output_stage(name: str, seq_path: str, seed: int, inputs_path: str,
                      runs: list[tuple[str, str]]) -> list[str]:
     """``--output-stage``: steps 1-3 of the defaults (seeds raised by ``seed``) on one cached
@@ -360,14 +367,19 @@ def score(name: str, seq_path: str, pred_path: str) -> dict[str, Any]:
                     "far_fraction": float("nan"), "n_far": 0, "n_duplicate": 0,
                     "n_near_miss": 0, "subject_size_m": subject_size(data["gt_joints"], ev["surface"])})
         return row
-    rep = evaluate(pred, data["gt_joints"], data["parents"], **ev)
-    row.update({"recall": rep.recall, "precision": rep.precision, "n_pred": rep.n_pred,
-                "n_scorable": rep.n_scorable, "n_matched": rep.n_matched,
-                "normalized_error_cm": 100 * rep.normalized_error,
-                "raw_error_cm": 100 * rep.raw_error, "far_fraction": rep.far_fraction,
-                "n_far": rep.n_far, "n_duplicate": rep.n_duplicate,
-                "n_near_miss": rep.n_near_miss, "subject_size_m": rep.subject_size})
+    row.update(report_scores(evaluate(pred, data["gt_joints"], data["parents"], **ev)))
     return row
+
+
+def report_scores(rep: EvalReport) -> dict[str, float]:
+    """The numbers of a score row from an :class:`~pointrig.evaluate.EvalReport` (errors in
+    cm, the subject's size in metres)."""
+    return {"recall": rep.recall, "precision": rep.precision, "n_pred": rep.n_pred,
+            "n_scorable": rep.n_scorable, "n_matched": rep.n_matched,
+            "normalized_error_cm": 100 * rep.normalized_error,
+            "raw_error_cm": 100 * rep.raw_error, "far_fraction": rep.far_fraction,
+            "n_far": rep.n_far, "n_duplicate": rep.n_duplicate,
+            "n_near_miss": rep.n_near_miss, "subject_size_m": rep.subject_size}
 
 
 def _task(args: tuple[str, str, str, str, int]) -> tuple[str, str]:
@@ -428,8 +440,8 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, float]:
         "normalized_error_cm": float(np.mean(ne)) if ne else float("nan"),
         "far_fraction": float(np.mean([r["far_fraction"] if np.isfinite(r["far_fraction"])
                                        else 0.0 for r in ok])),
-        "n_duplicate": float(np.mean([r.get("n_duplicate", np.nan) for r in ok])),
-        "n_near_miss": float(np.mean([r.get("n_near_miss", np.nan) for r in ok])),
+        "n_duplicate": float(np.mean([r["n_duplicate"] for r in ok])),
+        "n_near_miss": float(np.mean([r["n_near_miss"] for r in ok])),
         "seconds": float(np.sum([r["seconds"] for r in ok])),
         "cpu_seconds": float(np.sum([r.get("cpu_seconds", np.nan) for r in ok])),
         "failed": sum(bool(r.get("error")) for r in ok),
@@ -594,10 +606,8 @@ def main(argv: list[str]) -> int:
             todo = [v for v in range(len(a.variants))
                     if not Path(pred_paths[(v, sd, n)]).exists() or a.rerun]
             if todo:
-                idir = a.cache / "stage-inputs" / hashlib.sha1(
-                    json.dumps({"code": code_1_3, "seed": sd}).encode()).hexdigest()[:16]
                 stage_tasks.append((sd, todo, (
-                    n, paths[n], sd, str(idir / f"{Path(paths[n]).stem}.npz"),
+                    n, paths[n], sd, str(stage_inputs_path(a.cache, paths[n], sd, code_1_3)),
                     [(a.variants[v], pred_paths[(v, sd, n)]) for v in todo])))
                 tasks.extend(((v, sd), (n,)) for v in todo)
     pending = {(v, sd, t[0]) for (v, sd), t in tasks}

@@ -32,9 +32,8 @@ per set and group.
 from __future__ import annotations
 
 import argparse
-import hashlib
-import json
 from concurrent.futures import ProcessPoolExecutor
+from contextlib import nullcontext
 from pathlib import Path
 from typing import Any
 
@@ -86,10 +85,7 @@ def seen_from(points: np.ndarray, camera: np.ndarray, bin_deg: float = 0.4,
 
 
 def _score(pred: np.ndarray, data: dict[str, Any]) -> dict[str, float]:
-    rep = evaluate(pred, data["gt_joints"], data["parents"], **data["eval"])
-    return {"recall": rep.recall, "precision": rep.precision, "n_pred": rep.n_pred,
-            "n_scorable": rep.n_scorable, "normalized_error_cm": 100 * rep.normalized_error,
-            "n_near_miss": rep.n_near_miss, "n_duplicate": rep.n_duplicate}
+    return bg.report_scores(evaluate(pred, data["gt_joints"], data["parents"], **data["eval"]))
 
 
 def _step2(rest: np.ndarray, tracks: np.ndarray) -> np.ndarray:
@@ -158,26 +154,16 @@ def main(argv: list[str] | None = None) -> int:
     if only - set(corpus.SEQUENCES):
         ap.error(f"unknown sequence: {', '.join(sorted(only - set(corpus.SEQUENCES)))}")
     names.sort(key=lambda n: corpus.SEQUENCES[n].set != "tuning")
-    synth_code = bg.synth_fingerprint()
-    idir = a.cache / "stage-inputs" / hashlib.sha1(json.dumps(
-        {"code": bg.code_fingerprint(steps_1_to_3=True), "seed": 0}).encode()).hexdigest()[:16]
+    synth_code, code_1_3 = bg.synth_fingerprint(), bg.code_fingerprint(steps_1_to_3=True)
     tasks = []
     for n in names:
         path, _ = bg.ensure_sequence(n, corpus.FRAMES, a.cache, synth_code)
-        tasks.append((n, path, str(idir / f"{Path(path).stem}.npz"), step1))
+        tasks.append((n, path, str(bg.stage_inputs_path(a.cache, path, 0, code_1_3)), step1))
     head = "rec/prec  out/scored  cm near"
     print(f"{'sequence':<24} {'set':<6}" + "".join(f"  {r + ': ' + head:>38}" for r in rows))
     results: dict[str, dict[str, dict[str, float]]] = {}
-    if a.jobs > 1:
-        with ProcessPoolExecutor(a.jobs) as ex:
-            done = ex.map(_task, tasks)
-            for n, res in done:
-                results[n] = res
-                print(f"{n:<24} {corpus.SEQUENCES[n].set:<6}"
-                      + "".join(f"  {_line(res[r]):>38}" for r in rows), flush=True)
-    else:
-        for t in tasks:
-            n, res = _task(t)
+    with ProcessPoolExecutor(a.jobs) if a.jobs > 1 else nullcontext() as ex:
+        for n, res in (ex.map(_task, tasks) if ex is not None else map(_task, tasks)):
             results[n] = res
             print(f"{n:<24} {corpus.SEQUENCES[n].set:<6}"
                   + "".join(f"  {_line(res[r]):>38}" for r in rows), flush=True)
