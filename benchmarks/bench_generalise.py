@@ -26,9 +26,9 @@ afresh, so a change of the scoring needs no run.
 
 Means: recall, precision, joints out, the far share, the duplicates and near misses a sequence
 (:attr:`pointrig.evaluate.EvalReport.duplicate`, ``near_miss``: extra joints at a matched
-joint, joints missed but found within 1.5 times the threshold) and seconds over every sequence
-(a run that fails counts as recall 0 and no joints); the normalised error over the sequences
-where the run matched a joint.
+joint, joints missed whose own output joint lies within 1.5 times the threshold) and seconds
+over every sequence (a run that fails counts as recall 0 and no joints); the normalised error
+over the sequences where the run matched a joint.
 
 A single run is noisy: a last-bit change upstream (another CPU's vector code, a reordered sum)
 flips discrete choices (a cluster boundary, a merge) and moves a set's means by a few

@@ -476,6 +476,23 @@ def test_duplicates_and_near_misses_hand_built_case():
     assert evaluate(np.stack([p0, p0]), np.stack([g0, g0]), np.array([-1, 0, 0]),
                     skinned=np.ones(3, dtype=bool), threshold=0.1,
                     near_miss_factor=1.1).n_near_miss == 0
+    # a joint 12 cm from a matched joint and nothing else near it: not a near miss (the
+    # prediction there is the other joint's); with a free prediction at 13 cm it is one
+    g1 = np.array([[0.0, 0.0, 0.0], [0.12, 0.0, 0.0]])
+    skinned = np.ones(2, dtype=bool)
+    lone = evaluate(np.stack([g1[:1], g1[:1]]), np.stack([g1, g1]), np.array([-1, 0]),
+                    skinned=skinned, threshold=0.1)
+    assert [r.matched for r in lone.rows] == [0, -1] and lone.n_near_miss == 0
+    p1 = np.array([g1[0], g1[1] + [0, 0.13, 0]])
+    free = evaluate(np.stack([p1, p1]), np.stack([g1, g1]), np.array([-1, 0]),
+                    skinned=skinned, threshold=0.1)
+    assert free.near_miss.tolist() == [False, True]
+    # an unmatched prediction 14 cm from joint 1 but 2 cm from joint 0 (a duplicate of joint 0)
+    # is not joint 1's
+    p2 = np.array([g1[0], g1[0] - [0.02, 0, 0]])
+    dup = evaluate(np.stack([p2, p2]), np.stack([g1, g1]), np.array([-1, 0]),
+                   skinned=skinned, threshold=0.1)
+    assert dup.n_duplicate == 1 and dup.n_near_miss == 0
 
 
 def test_far_joints_against_brute_force():

@@ -52,9 +52,11 @@ predicted joints.
 **Duplicates and near misses** (diagnostics; they change no score): an unmatched predicted
 joint is a *duplicate* when it lies within the threshold of a scorable joint that another
 predicted joint matched (two joints where the rig has one); a scorable joint left unmatched is a
-*near miss* when the nearest predicted joint is within ``near_miss_factor`` (default 1.5) times
-the threshold (found, but placed too far: 8-12 % of the size by default). They tell a loss of
-precision by extra joints at real joints, and a loss of recall by placement, from the rest.
+*near miss* when an unmatched predicted joint whose nearest scorable joint it is lies within
+``near_miss_factor`` (default 1.5) times the threshold (found, but placed too far: 8-12 % of the
+size by default; a predicted joint matched elsewhere or nearer another joint, such as the missed
+joint's parent or a duplicate of it, does not count). They tell a loss of precision by extra
+joints at real joints, and a loss of recall by placement, from the rest.
 
 **Pivot error** (a diagnostic; it changes no score): with the rig's bone transforms, each
 joint's distance from where its part turns against its reference part (:func:`pivot_errors`).
@@ -142,7 +144,7 @@ class EvalReport:
     #: ``(P,)`` bool: unmatched predicted joints within the threshold of a scorable joint
     #: another predicted joint matched (module docstring)
     duplicate: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
-    #: ``(J,)`` bool: unmatched scorable joints with a predicted joint within
+    #: ``(J,)`` bool: unmatched scorable joints nearest to an unmatched predicted joint within
     #: ``near_miss_factor`` times the threshold (module docstring)
     near_miss: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
 
@@ -707,12 +709,17 @@ def evaluate(pred_joints: np.ndarray, gt_joints: np.ndarray, gt_parents: np.ndar
     if have_surface and source == "bones":
         pivot = pivot_errors(g, parents, bone_rotations, bone_translations, surface_labels)
     # diagnostics: unmatched predictions at a joint another one matched; unmatched scorable
-    # joints with a prediction just beyond the threshold
+    # joints whose own (nearest) unmatched prediction lies just beyond the threshold
     taken = np.isin(np.arange(P), matched[matched >= 0])
     col_matched = matched[cols] >= 0
     duplicate = ~taken & ((cost < tau) & col_matched[None, :]).any(axis=1)
     near_miss = np.zeros(J, dtype=bool)
-    near_miss[cols] = ~col_matched & (cost.min(axis=0) < near_miss_factor * tau)
+    if cols.size:
+        # a prediction no joint matched stands for the scorable joint nearest to it
+        for a in np.flatnonzero(~taken):
+            b = int(np.argmin(cost[a]))
+            if not col_matched[b] and cost[a, b] < near_miss_factor * tau:
+                near_miss[cols[b]] = True
     rows = [JointRow(gt_names[j], bool(mask[j]), reasons[j], int(matched[j]), float(raw[j]),
                      float(norm[j]), float(swing[j]), float(pivot[j])) for j in range(J)]
     return EvalReport(
