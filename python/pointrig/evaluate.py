@@ -716,10 +716,10 @@ def evaluate(pred_joints: np.ndarray, gt_joints: np.ndarray, gt_parents: np.ndar
     near_miss = np.zeros(J, dtype=bool)
     if cols.size:
         # a prediction no joint matched stands for the scorable joint nearest to it
-        for a in np.flatnonzero(~taken):
-            b = int(np.argmin(cost[a]))
-            if not col_matched[b] and cost[a, b] < near_miss_factor * tau:
-                near_miss[cols[b]] = True
+        free = np.flatnonzero(~taken)
+        own = cost[free].argmin(axis=1)
+        hit = ~col_matched[own] & (cost[free, own] < near_miss_factor * tau)
+        near_miss[cols[own[hit]]] = True
     rows = [JointRow(gt_names[j], bool(mask[j]), reasons[j], int(matched[j]), float(raw[j]),
                      float(norm[j]), float(swing[j]), float(pivot[j])) for j in range(J)]
     return EvalReport(
