@@ -89,3 +89,37 @@ def test_bad_bone_names_file_fails_before_step_1(tmp_path, rng, capsys, text, wh
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "names.json" in err[0] and what in err[0]
     assert not out.exists()
+
+
+@pytest.mark.parametrize("command", ["extract", "batch"])
+def test_preset_is_the_base_the_config_file_overrides(tmp_path, command):
+    """``--preset`` picks the configuration that ``--config`` then overrides, field by field:
+    ``fast`` is the defaults with its three fields changed, ``paper`` is
+    ``PipelineConfig.paper()``, and an unknown name is refused by the parser (exit 2)."""
+    import dataclasses
+
+    from pointrig.cli import _config_from_args, build_parser
+    from pointrig.config import PipelineConfig
+
+    toml = tmp_path / "over.toml"
+    toml.write_text("[joints]\ntrack_iterations = 7\n")
+
+    def config(*extra):
+        args = build_parser().parse_args([command, "in", "-o", str(tmp_path / "o"), *extra])
+        return _config_from_args(args)
+
+    assert config() == PipelineConfig()
+    assert config("--preset", "paper") == PipelineConfig.paper()
+    fast = config("--preset", "fast", "--config", str(toml))
+    d = PipelineConfig()
+    changed = {(stage, f.name) for stage in ("preprocess", "registration", "structure", "joints",
+                                             "rig")
+               for f in dataclasses.fields(getattr(d, stage))
+               if getattr(getattr(fast, stage), f.name) != getattr(getattr(d, stage), f.name)}
+    assert changed == {("registration", "refine_rounds"), ("joints", "estep_max_points"),
+                       ("joints", "track_iterations")}
+    assert fast.joints.track_iterations == 7  # the file over the preset
+    assert fast.registration.refine_rounds == 0 and fast.joints.estep_max_points == 2000
+    with pytest.raises(SystemExit) as exc:
+        config("--preset", "quick")
+    assert exc.value.code == 2

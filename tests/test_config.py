@@ -300,3 +300,16 @@ def test_paper_pipeline_runs_end_to_end(tmp_path):
     doc = json.loads((tmp_path / "skeleton.json").read_text())
     assert doc["params"]["joints"]["mode"] == "paper"
     assert re.fullmatch(r"j\d+", back.joint_names[0])
+
+
+def test_presets_by_name():
+    """:meth:`PipelineConfig.preset` names the default, fast and paper configurations; any
+    other name is a one-line ConfigError listing them."""
+    from pointrig.config import PRESETS
+
+    assert PRESETS == ("default", "fast", "paper")
+    assert PipelineConfig.preset("default") == PipelineConfig()
+    assert PipelineConfig.preset("paper") == PipelineConfig.paper()
+    assert PipelineConfig.preset("fast") == PipelineConfig.fast() != PipelineConfig()
+    with pytest.raises(ConfigError, match="unknown preset 'quick'; known: default, fast, paper"):
+        PipelineConfig.preset("quick")

@@ -15,7 +15,7 @@ import sys
 import time
 from collections.abc import Sequence
 
-from .config import PreprocessConfig
+from .config import PRESETS, PreprocessConfig
 from .errors import ConfigError, InputError, PointrigError
 from .sequence import check_units
 
@@ -48,6 +48,15 @@ def _add_input_options(p: argparse.ArgumentParser) -> None:
                    "bag, Record3D .r3d, Stray Scanner folder), a folder of frames "
                    "(ply/pcd/xyz/txt/npy/depth png) or an .npz (docs/inputs.md)")
     _add_reading_options(p)
+
+
+def _add_config_options(p: argparse.ArgumentParser) -> None:
+    """``--config`` and ``--preset`` (extract and batch; read by :func:`_config_from_args`)."""
+    p.add_argument("--config", default=None, help="TOML file overriding any parameter")
+    p.add_argument("--preset", choices=PRESETS, default="default",
+                   help="the parameters the --config file overrides: default; fast (about "
+                   "half the time, a larger joint error; docs/parameters.md); paper (the "
+                   "paper's method)")
 
 
 def _add_reading_options(p: argparse.ArgumentParser) -> None:
@@ -184,9 +193,9 @@ def _config_from_args(args: argparse.Namespace):
     """The TOML config (if any) with the input options given on the command line on top."""
     import dataclasses
 
-    from .config import load_config
+    from .config import PipelineConfig, load_config
 
-    cfg = load_config(args.config)
+    cfg = load_config(args.config, base=PipelineConfig.preset(getattr(args, "preset", "default")))
     given = {
         "crop_min": args.crop_min, "crop_max": args.crop_max,
         "voxel_size": args.voxel or None, "frame_start": args.start or None,
@@ -437,7 +446,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("extract", help="extract a skeleton from a sequence (steps 1-3)")
     _add_input_options(p)
     p.add_argument("-o", "--output", required=True, help="output folder")
-    p.add_argument("--config", default=None, help="TOML file overriding any parameter")
+    _add_config_options(p)
     p.add_argument("--resume", action=argparse.BooleanOptionalAction, default=True,
                    help="reuse OUT/registration.npz when input and step-1 parameters match")
     p.add_argument("--stop-after", choices=["registration", "structure", "joints"],
@@ -475,7 +484,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("inputs", nargs="+", metavar="INPUT",
                    help="recordings, as for extract (docs/inputs.md)")
     p.add_argument("-o", "--output", required=True, help="output folder of the batch")
-    p.add_argument("--config", default=None, help="TOML file overriding any parameter")
+    _add_config_options(p)
     p.add_argument("-j", "--jobs", type=int, default=1, metavar="N",
                    help="recordings at once on this machine, each in its own process with "
                    "its threads capped so that N x threads = cores (default 1)")
