@@ -25,6 +25,12 @@ estimating its own normals, the BLAS on its default threads; :func:`unshared`) a
 ratio::
 
     python -m benchmarks.bench_speed --stages [--unshared] [--no-python]   # human, 100 frames
+
+``--preset fast`` times the defaults against that preset instead (:meth:`PipelineConfig.preset`;
+its skeletons differ, so the last column counts each form's joints; with ``--stages`` it
+profiles the preset)::
+
+    python -m benchmarks.bench_speed --preset fast --only human,girl_run,hand
 """
 
 from __future__ import annotations
@@ -44,7 +50,7 @@ import pointrig.preprocess as pre_mod
 import pointrig.registration as reg_mod
 from benchmarks.sets import add_sequence_options, chosen, suite
 from benchmarks.stages import StageProfile, table
-from pointrig.config import PipelineConfig
+from pointrig.config import PRESETS, PipelineConfig
 from pointrig.pipeline import extract
 from pointrig.sequence import PointSequence
 
@@ -177,6 +183,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="the per-stage profile of the default form instead")
     ap.add_argument("--no-python", action="store_true",
                     help="with --stages: leave out the profiled run (the Python share)")
+    ap.add_argument("--preset", choices=PRESETS[1:], default=None,
+                    help="time the defaults against this preset instead of the serial form "
+                    "(with --stages: profile the preset)")
     ap.add_argument("--unshared", action="store_true",
                     help="with --stages: also the pipeline without its run-wide sharing")
     a = ap.parse_args(argv)
@@ -186,31 +195,42 @@ def main(argv: list[str] | None = None) -> int:
     cfg = PipelineConfig()
     if a.stages:
         for name, syn in suite(a.frames, only, sequences):
-            print_stages(name, syn.to_point_sequence(), cfg, not a.no_python, a.unshared)
+            print_stages(name, syn.to_point_sequence(),
+                         PipelineConfig.preset(a.preset) if a.preset else cfg,
+                         not a.no_python, a.unshared)
         return 0
     cols = (*STAGES, "total")
-    print(f"{'sequence':<16} {'form':<10}" + "".join(f"{c:>14}" for c in cols)
-          + f"{'joints differ (m)':>19}")
+    if a.preset:  # the defaults against a preset: the preset's speed-up, its joints counted
+        forms = {"default": (cfg, nullcontext), a.preset: (PipelineConfig.preset(a.preset),
+                                                           nullcontext)}
+        last = "joints"
+    else:
+        forms = {"serial": (serial_config(cfg), serial), "default": (cfg, nullcontext)}
+        last = "joints differ (m)"
+    ref, new = forms
+    print(f"{'sequence':<16} {'form':<10}" + "".join(f"{c:>14}" for c in cols) + f"{last:>19}")
     for name, syn in suite(a.frames, only, sequences):
         seq = syn.to_point_sequence()
         best: dict[str, dict[str, float]] = {}
         poses: dict[str, np.ndarray] = {}
         for _ in range(a.repeats):
-            for form in ("serial", "default"):
-                with serial() if form == "serial" else nullcontext():
-                    secs, P = timed(seq, serial_config(cfg) if form == "serial" else cfg)
+            for form, (form_cfg, context) in forms.items():
+                with context():
+                    secs, P = timed(seq, form_cfg)
                 poses[form] = P
                 if form not in best or secs["total"] < best[form]["total"]:
                     best[form] = secs
-        diff = (float(np.abs(poses["serial"] - poses["default"]).max())
-                if poses["serial"].shape == poses["default"].shape else float("inf"))
-        for form in ("serial", "default"):
+        diff = (float(np.abs(poses[ref] - poses[new]).max())
+                if poses[ref].shape == poses[new].shape else float("inf"))
+        for form in forms:
             cells = "".join(f"{best[form].get(c, 0.0):>13.2f}s" for c in cols)
-            tail = f"{diff:>19.1e}" if form == "default" else ""
+            if a.preset:
+                tail = f"{poses[form].shape[1]:>19d}"
+            else:
+                tail = f"{diff:>19.1e}" if form == new else ""
             print(f"{name:<16} {form:<10}{cells}{tail}")
-        ratio = "".join(
-            f"{best['serial'].get(c, 0.0) / max(best['default'].get(c, 0.0), 1e-9):>13.2f}x"
-            for c in cols)
+        ratio = "".join(f"{best[ref].get(c, 0.0) / best[new][c]:>13.2f}x"
+                        if best[new].get(c, 0.0) > 0 else f"{'-':>14}" for c in cols)
         print(f"{name:<16} {'speed-up':<10}{ratio}", flush=True)
     return 0
 

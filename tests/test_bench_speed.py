@@ -63,3 +63,17 @@ def test_reference_forms_equal_the_pipeline_s() -> None:
     q = rng.normal(size=(500, 3))
     np.testing.assert_allclose(bench_speed.nearest_kd(q, pts), nearest_distances(q, pts),
                                rtol=0, atol=1e-12)
+
+
+def test_preset_table_times_the_defaults_against_the_preset(capsys) -> None:
+    """``--preset fast`` prints a default row, a fast row with each form's joint count and
+    a speed-up row whose total is the ratio of the two rows' totals as printed."""
+    assert bench_speed.main(["--preset", "fast", "--only", "upper_body", "--frames", "6"]) == 0
+    rows = {ln.split()[1]: ln.split()[2:] for ln in capsys.readouterr().out.splitlines()
+            if ln.startswith("upper_body")}
+    assert set(rows) == {"default", "fast", "speed-up"}
+    total = len(bench_speed.STAGES)
+    t_default, t_fast = (float(rows[f][total].rstrip("s")) for f in ("default", "fast"))
+    assert float(rows["speed-up"][total].rstrip("x")) == pytest.approx(t_default / t_fast,
+                                                                        abs=0.01)
+    assert int(rows["default"][-1]) >= 2 and int(rows["fast"][-1]) >= 2
