@@ -220,14 +220,16 @@ def main(argv: list[str] | None = None) -> int:
                 poses[form] = P
                 if form not in best or secs["total"] < best[form]["total"]:
                     best[form] = secs
-        diff = (float(np.abs(poses[ref] - poses[new]).max())
-                if poses[ref].shape == poses[new].shape else float("inf"))
         for form in forms:
             cells = "".join(f"{best[form].get(c, 0.0):>13.2f}s" for c in cols)
             if a.preset:
                 tail = f"{poses[form].shape[1]:>19d}"
+            elif form == new:
+                diff = (float(np.abs(poses[ref] - poses[new]).max())
+                        if poses[ref].shape == poses[new].shape else float("inf"))
+                tail = f"{diff:>19.1e}"
             else:
-                tail = f"{diff:>19.1e}" if form == new else ""
+                tail = ""
             print(f"{name:<16} {form:<10}{cells}{tail}")
         ratio = "".join(f"{best[ref].get(c, 0.0) / best[new][c]:>13.2f}x"
                         if best[new].get(c, 0.0) > 0 else f"{'-':>14}" for c in cols)

@@ -195,7 +195,7 @@ def _config_from_args(args: argparse.Namespace):
 
     from .config import PipelineConfig, load_config
 
-    cfg = load_config(args.config, base=PipelineConfig.preset(getattr(args, "preset", "default")))
+    cfg = load_config(args.config, base=PipelineConfig.preset(args.preset))
     given = {
         "crop_min": args.crop_min, "crop_max": args.crop_max,
         "voxel_size": args.voxel or None, "frame_start": args.start or None,
