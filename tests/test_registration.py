@@ -645,3 +645,17 @@ def test_node_transforms_from_points_recover_rigid_motion_per_frame():
         np.testing.assert_allclose(t1, t[f], atol=1e-12)
     with pytest.raises(InputError, match="posed must be"):
         node_transforms_from_points(g, posed[:, :-1])
+
+
+def test_one_rest_candidate_registers_from_the_visible_frame_unscored() -> None:
+    """The default ``rest_frame = "fit"`` with one candidate: the registration is exactly the
+    one from :func:`resolve_rest_frame`'s frame, and no misfit is scored (no choice)."""
+    frames, _ = scissor_legs(8, 30.0, gap=0.1)
+    cfg = RegistrationConfig(n_nodes=40)
+    assert cfg.rest_frame == "fit" and cfg.rest_candidates == 1
+    res = register_sequence(PointSequence(frames), cfg)
+    vis = register_sequence(PointSequence(frames), dataclasses.replace(
+        cfg, rest_frame=resolve_rest_frame(cfg, 8, frames)))
+    assert "rest_candidates_misfit" not in res.params
+    assert res.params["rest_frame_index"] == vis.params["rest_frame_index"]
+    np.testing.assert_array_equal(res.points, vis.points)

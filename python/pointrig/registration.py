@@ -432,7 +432,8 @@ def register_sequence(
     (:func:`sequence_misfit`) is returned, unless it beats the first candidate by no more than
     ``rest_fit_margin``; its ``params["rest_candidates_misfit"]`` maps each candidate (the
     frame index as a string, as in JSON) to its misfit (metres). The candidates run side by
-    side on ``config.workers`` threads (the same result as one after the other).
+    side on ``config.workers`` threads (the same result as one after the other). With a single
+    candidate (``rest_candidates = 1``, the default) nothing is scored and the key is absent.
 
     Parameters
     ----------
@@ -474,6 +475,8 @@ def register_sequence(
         return _register_from(seq, config, rf, progress, partial, on_frame)
     candidates = rest_candidates(config, seq.frames)
     k = len(candidates)
+    if k == 1:  # nothing to choose between: no misfit to score
+        return _register_from(seq, config, candidates[0], progress, partial, on_frame)
     done_by = [0] * k
     counting = threading.Lock()
 
