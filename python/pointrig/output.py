@@ -103,12 +103,13 @@ def output_skeleton(rest_points: np.ndarray, labels: np.ndarray, bone_parent: np
         t0 = time.perf_counter()
         sel = select_joints(observed[0], rest_points, labels, bone_parent, R, T,
                             penalty_scale=config.structure.joint_penalty,
-                            max_frames=config.structure.joint_frames)
+                            max_frames=config.structure.joint_frames,
+                            workers=config.structure.workers)
         if sel.removed:
             log.info("removed %d of %d joints the raw frames do not support",
                      len(sel.removed), len(bone_parent))
         labels, bone_parent, R, T = sel.labels, sel.bone_parent, sel.R, sel.T
-        joints_rest = np.asarray(joints_rest)[sel.keep]
+        joints_rest = sel.rest_joints(joints_rest)
         if weights is not None:
             weights = sel.merge_weights(weights)
         if timings is not None:

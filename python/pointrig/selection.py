@@ -24,18 +24,30 @@ points, not on the registration:
   the position from all of them, so the Bayesian information criterion charges
   ``pen = 3 F ln(n / F) + 3 ln(n)``, ``n`` the (weighted) raw points nearest the two parts in
   the ``F`` frames scored, and keeps the joint when ``dSSE / sigma^2 > penalty_scale * pen``;
-- joints are removed greedily, the least supported first, until every remaining joint passes.
+- a bone ``b`` between its parent ``p`` and its only child ``c`` can lose a joint in a second
+  way: its rest points are shared out between ``p``'s and ``c``'s motions (each point to the one
+  that poses it nearer both the raw points and ``b``'s own pose of it over the frames scored)
+  and ``c`` hangs from ``p``. This is the smaller model a blend zone calls for: where the
+  registration spreads a joint's bend over a band of the surface, step 2 makes the band a short
+  bone of its own, and neither of its two joints goes when it is merged into a neighbour whole.
+  The same ``dSSE`` (the raw points nearest the three bones) and the same penalty of one joint
+  decide; ``c``'s joint moves from its own place towards ``b``'s by the fraction of ``b``'s
+  points that went to ``c``;
+- joints are removed greedily, the least supported removal first, until every remaining joint
+  passes.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from ._core import cluster_fit
+from .config import pool_size
 from .geometry import nearest_distances
 
 __all__ = ["JointSelection", "select_joints"]
@@ -62,6 +74,14 @@ class JointSelection:
         margin ``dSSE / sigma^2 - penalty_scale * pen`` (dimensionless, negative).
     sigma2
         Residual variance of the full tree, m^2.
+    shared_out
+        ``(bone, child, fraction)`` per bone whose points were shared out between its parent
+        and its only child, in removal order (input numbering): ``fraction`` of its rest points
+        went to the child.
+    point_bone
+        ``(M, B)`` the kept bone that takes each input bone's weight at each rest point:
+        ``merged_into`` but in the shared-out bones' columns; ``None`` when none was shared
+        out.
     """
 
     keep: np.ndarray
@@ -72,13 +92,28 @@ class JointSelection:
     T: np.ndarray
     removed: list[tuple[int, int, float]] = field(default_factory=list)
     sigma2: float = 0.0
+    shared_out: list[tuple[int, int, float]] = field(default_factory=list)
+    point_bone: np.ndarray | None = None
 
     def merge_weights(self, weights: np.ndarray) -> np.ndarray:
-        """``(M, B')`` skinning weights: each removed bone's weight added to the bone it joined."""
+        """``(M, B')`` skinning weights from the input's ``(M, B)``: each removed bone's
+        weight added to the bone it joined (per rest point for a shared-out bone)."""
         W = np.asarray(weights, dtype=float)
-        out = np.zeros((W.shape[0], len(self.keep)))
-        np.add.at(out.T, self.merged_into, W.T)
+        m = W.shape[0]
+        dest = (np.broadcast_to(self.merged_into, W.shape) if self.point_bone is None
+                else self.point_bone)
+        out = np.zeros((m, len(self.keep)))
+        np.add.at(out, (np.repeat(np.arange(m), W.shape[1]), dest.ravel()), W.ravel())
         return out
+
+    def rest_joints(self, joints_rest: np.ndarray) -> np.ndarray:
+        """``(B', 3)`` rest joints of the kept bones from the input's ``(B, 3)`` (metres): a
+        shared-out bone's child moves its joint towards the bone's own by the fraction of the
+        bone's points it took (the module docstring); the others stay."""
+        jr = np.array(joints_rest, dtype=float)
+        for b, c, frac in self.shared_out:
+            jr[c] = jr[c] + frac * (jr[b] - jr[c])
+        return jr[self.keep]
 
 
 def _posed(rest_points: np.ndarray, labels: np.ndarray, R: np.ndarray, T: np.ndarray
@@ -88,7 +123,8 @@ def _posed(rest_points: np.ndarray, labels: np.ndarray, R: np.ndarray, T: np.nda
 
 def select_joints(frames: Sequence[np.ndarray], rest_points: np.ndarray, labels: np.ndarray,
                   bone_parent: np.ndarray, R: np.ndarray, T: np.ndarray, *,
-                  penalty_scale: float = 1.0, max_frames: int = 30) -> JointSelection:
+                  penalty_scale: float = 1.0, max_frames: int = 30, workers: int = 0
+                  ) -> JointSelection:
     """Remove the joints that the raw frames do not support (module docstring).
 
     Parameters
@@ -108,6 +144,8 @@ def select_joints(frames: Sequence[np.ndarray], rest_points: np.ndarray, labels:
         0 keeps every joint.
     max_frames
         Frames scored (evenly spaced); the penalty counts the same frames.
+    workers
+        Threads for the candidates' margins (0 = all cores; the same result for any number).
 
     Returns
     -------
@@ -149,6 +187,12 @@ def select_joints(frames: Sequence[np.ndarray], rest_points: np.ndarray, labels:
         Rm, Tm, _ = cluster_fit(Qg, np.ascontiguousarray(posed), np.zeros(len(Qg), np.int64), 1)
         return Rm[:, 0], Tm[:, 0]
 
+    def penalty(n_pair: float) -> float:
+        """The BIC's charge for one ball joint seen by ``n_pair`` (weighted) raw points."""
+        nf = len(fidx)
+        return penalty_scale * (3 * nf * np.log(max(n_pair / nf, 2.0))
+                                + 3 * np.log(max(n_pair, 2)))
+
     def evidence(b: int) -> float:
         p = parent[b]
         g = (labels == b) | (labels == p)
@@ -162,38 +206,112 @@ def select_joints(frames: Sequence[np.ndarray], rest_points: np.ndarray, labels:
                 continue
             dm = nearest_distances(X[i][sel], Q[g] @ Rm_all[i].T + Tm_all[i], cap)
             dsse += wt[i] * float(np.sum(dm * dm) - np.sum(d2[i][sel]))
-        nf = len(fidx)
-        pen = penalty_scale * (3 * nf * np.log(max(n_pair / nf, 2.0))
-                               + 3 * np.log(max(n_pair, 2)))
-        return dsse / sigma2 - pen
+        return dsse / sigma2 - penalty(n_pair)
 
-    cache: dict[tuple[int, int], float] = {}
-    while True:
-        cand = []
-        for b in alive:
-            if parent[b] >= 0:
-                key = (b, int(parent[b]))
-                if key not in cache:
-                    cache[key] = evidence(b)
-                cand.append((cache[key], b))
-        if not cand:
-            break
-        ev, b = min(cand)
-        if ev >= 0:
-            break
-        p = int(parent[b])
-        removed.append((b, p, ev))
-        g = (labels == b) | (labels == p)
-        R[:, p], T[:, p] = merged_motion(g, np.arange(F))
-        labels[labels == b] = p
-        parent[parent == b] = p
-        alive.remove(b)
-        Qp = Q[labels == p]
+    # the raw points of each frame scored (a far dummy point for an empty frame)
+    trees = [cKDTree(x if len(x) else np.full((1, 3), 1e9)) for x in X]
+
+    def share(b: int, p: int, c: int) -> np.ndarray:
+        """``(M_b,)`` ``p`` or ``c`` for each rest point of ``b``: the motion that poses it
+        nearer, over the frames scored, both the raw points (capped) and ``b``'s own pose of
+        it (squared distances, summed)."""
+        qb = Q[labels == b]
+        cost = []
+        for x in (p, c):
+            cx = np.zeros(len(qb))
+            for i, t in enumerate(fidx):
+                y = qb @ R[t, x].T + T[t, x]
+                cx += np.sum((y - qb @ R[t, b].T - T[t, b]) ** 2, axis=1)
+                cx += np.minimum(trees[i].query(y, distance_upper_bound=cap)[0], cap) ** 2
+            cost.append(cx)
+        return np.where(cost[0] <= cost[1], p, c)
+
+    def refit(lab: np.ndarray, group: tuple[int, ...], seen: tuple[int, ...],
+              bones: bool = False) -> tuple[list[np.ndarray], list[np.ndarray], float]:
+        """Per frame scored, the capped residuals of the raw points nearest the bones
+        ``seen`` against the posed points the labels ``lab`` give the bones ``group`` and
+        (with ``bones``) the bone of each one's nearest posed point; the (weighted) count of
+        those raw points."""
+        g = np.isin(lab, group)
+        Qg, lg = Q[g], lab[g]
+        dist, bone, n_g = [], [], 0.0
         for i, t in enumerate(fidx):
-            near[i][near[i] == b] = p
-            sel = near[i] == p
-            d2[i][sel] = nearest_distances(X[i][sel], Qp @ R[t, p].T + T[t, p], cap) ** 2
-        cache = {k: v for k, v in cache.items() if p not in k and b not in k}
+            sel = np.isin(near[i], seen)
+            n_g += wt[i] * int(sel.sum())
+            posed = np.einsum("mij,mj->mi", R[t][lg], Qg) + T[t][lg]
+            if bones:
+                d, j = cKDTree(posed).query(X[i][sel])
+                dist.append(np.minimum(d, cap))
+                bone.append(lg[j])
+            else:
+                dist.append(nearest_distances(X[i][sel], posed, cap) if sel.any()
+                            else np.zeros(0))
+        return dist, bone, n_g
+
+    def share_evidence(b: int, p: int, c: int) -> float:
+        """The margin of sharing ``b`` out between ``p`` and ``c`` (their motions stay): the
+        raw points nearest the three bones against the posed points of ``p`` and ``c`` with
+        ``b``'s shared out, and the penalty of one joint."""
+        lab = labels.copy()
+        lab[labels == b] = share(b, p, c)
+        dm, _, n_g = refit(lab, (p, c), (b, p, c))
+        dsse = sum(wt[i] * float(np.sum(dm[i] ** 2)
+                                 - np.sum(d2[i][np.isin(near[i], (b, p, c))]))
+                   for i in range(len(fidx)))
+        return dsse / sigma2 - penalty(n_g)
+
+    point_bone = np.broadcast_to(np.arange(B), (len(Q), B)).copy()
+    shared_out: list[tuple[int, int, float]] = []
+    cache: dict[tuple[int, ...], float] = {}
+    with ThreadPoolExecutor(max_workers=pool_size(workers, B)) as pool:
+        while True:
+            # the removals open now: (b, parent) merges b into its parent, (b, parent, child)
+            # shares b out; each margin reads the state and changes nothing, so the missing ones
+            # are computed side by side with the same result as one after the other
+            keys: list[tuple[int, ...]] = []
+            for b in alive:
+                if parent[b] >= 0:
+                    keys.append((b, int(parent[b])))
+                    kids = [k for k in alive if parent[k] == b]
+                    if len(kids) == 1:
+                        keys.append((b, int(parent[b]), kids[0]))
+            todo = [k for k in keys if k not in cache]
+            for k, v in zip(todo, pool.map(lambda k: evidence(k[0]) if len(k) == 2
+                                           else share_evidence(*k), todo)):
+                cache[k] = v
+            if not keys:
+                break
+            ev, b, c = min((cache[k], k[0], k[2] if len(k) == 3 else -1) for k in keys)
+            if ev >= 0:
+                break
+            p = int(parent[b])
+            removed.append((b, p, ev))
+            if c >= 0:  # b's points shared out between p and c, c hung from p
+                lab_b = labels == b
+                to = share(b, p, c)
+                shared_out.append((b, c, float(np.mean(to == c))))
+                labels[lab_b] = to
+                point_bone[:, b] = np.where(labels == c, c, p)
+                parent[c] = p
+                alive.remove(b)
+                dm, bm, _ = refit(labels, (p, c), (b, p, c), bones=True)
+                for i in range(len(fidx)):
+                    sel = np.isin(near[i], (b, p, c))
+                    d2[i][sel], near[i][sel] = dm[i] ** 2, bm[i]
+                cache = {k: v for k, v in cache.items() if not {p, b, c} & set(k)}
+                continue
+            g = (labels == b) | (labels == p)
+            R[:, p], T[:, p] = merged_motion(g, np.arange(F))
+            labels[labels == b] = p
+            parent[parent == b] = p
+            alive.remove(b)
+            Qp = Q[labels == p]
+            for i, t in enumerate(fidx):
+                near[i][near[i] == b] = p
+                sel = near[i] == p
+                d2[i][sel] = nearest_distances(X[i][sel], Qp @ R[t, p].T + T[t, p], cap) ** 2
+            cache = {k: v for k, v in cache.items() if p not in k and b not in k}
+
     keep = np.array(alive, dtype=np.int64)
     index = -np.ones(B, dtype=np.int64)
     index[keep] = np.arange(len(keep))
@@ -204,4 +322,5 @@ def select_joints(frames: Sequence[np.ndarray], rest_points: np.ndarray, labels:
         keep=keep, merged_into=index[into], labels=index[labels],
         bone_parent=np.array([index[parent[b]] if parent[b] >= 0 else -1 for b in keep],
                              dtype=np.int64),
-        R=R[:, keep], T=T[:, keep], removed=removed, sigma2=sigma2)
+        R=R[:, keep], T=T[:, keep], removed=removed, sigma2=sigma2, shared_out=shared_out,
+        point_bone=index[into[point_bone]] if shared_out else None)
