@@ -421,7 +421,7 @@ class StructureConfig:
     # "yes" (one depth camera), "no" (fused or two-sided clouds: the paper's centroids),
     # "auto" (pointrig.view.is_single_view decides)
     single_view: str = "yes"
-    workers: int = 0  # threads for the ensemble's seeds (0 = all cores)
+    workers: int = 0  # threads: the ensemble's seeds, the joint selection (0 = all cores)
 
     def __post_init__(self) -> None:
         c = _Checks(self, "structure")
