@@ -208,8 +208,9 @@ def select_joints(frames: Sequence[np.ndarray], rest_points: np.ndarray, labels:
             dsse += wt[i] * float(np.sum(dm * dm) - np.sum(d2[i][sel]))
         return dsse / sigma2 - penalty(n_pair)
 
-    # the raw points of each frame scored (a far dummy point for an empty frame)
-    trees = [cKDTree(x if len(x) else np.full((1, 3), 1e9)) for x in X]
+    # the raw points of each frame scored (a far dummy point for an empty frame), built when
+    # the first bone with one child is scored
+    trees: list[cKDTree] = []
 
     def share(b: int, p: int, c: int) -> np.ndarray:
         """``(M_b,)`` ``p`` or ``c`` for each rest point of ``b``: the motion that poses it
@@ -238,7 +239,7 @@ def select_joints(frames: Sequence[np.ndarray], rest_points: np.ndarray, labels:
         for i, t in enumerate(fidx):
             sel = np.isin(near[i], seen)
             n_g += wt[i] * int(sel.sum())
-            posed = np.einsum("mij,mj->mi", R[t][lg], Qg) + T[t][lg]
+            posed = _posed(Qg, lg, R[t], T[t])
             if bones:
                 d, j = cKDTree(posed).query(X[i][sel])
                 dist.append(np.minimum(d, cap))
@@ -248,21 +249,26 @@ def select_joints(frames: Sequence[np.ndarray], rest_points: np.ndarray, labels:
                             else np.zeros(0))
         return dist, bone, n_g
 
-    def share_evidence(b: int, p: int, c: int) -> float:
+    def share_evidence(b: int, p: int, c: int) -> tuple[float, np.ndarray]:
         """The margin of sharing ``b`` out between ``p`` and ``c`` (their motions stay): the
         raw points nearest the three bones against the posed points of ``p`` and ``c`` with
-        ``b``'s shared out, and the penalty of one joint."""
+        ``b``'s shared out, and the penalty of one joint; and the split (:func:`share`)."""
+        to = share(b, p, c)
         lab = labels.copy()
-        lab[labels == b] = share(b, p, c)
+        lab[labels == b] = to
         dm, _, n_g = refit(lab, (p, c), (b, p, c))
         dsse = sum(wt[i] * float(np.sum(dm[i] ** 2)
                                  - np.sum(d2[i][np.isin(near[i], (b, p, c))]))
                    for i in range(len(fidx)))
-        return dsse / sigma2 - penalty(n_g)
+        return dsse / sigma2 - penalty(n_g), to
+
+    def margin(key: tuple[int, ...]) -> tuple[float, np.ndarray | None]:
+        """``(b, parent)``: merging ``b``; ``(b, parent, child)``: sharing ``b`` out."""
+        return (evidence(key[0]), None) if len(key) == 2 else share_evidence(*key)
 
     point_bone = np.broadcast_to(np.arange(B), (len(Q), B)).copy()
     shared_out: list[tuple[int, int, float]] = []
-    cache: dict[tuple[int, ...], float] = {}
+    cache: dict[tuple[int, ...], tuple[float, np.ndarray | None]] = {}
     with ThreadPoolExecutor(max_workers=pool_size(workers, B)) as pool:
         while True:
             # the removals open now: (b, parent) merges b into its parent, (b, parent, child)
@@ -276,19 +282,19 @@ def select_joints(frames: Sequence[np.ndarray], rest_points: np.ndarray, labels:
                     if len(kids) == 1:
                         keys.append((b, int(parent[b]), kids[0]))
             todo = [k for k in keys if k not in cache]
-            for k, v in zip(todo, pool.map(lambda k: evidence(k[0]) if len(k) == 2
-                                           else share_evidence(*k), todo)):
-                cache[k] = v
+            if not trees and any(len(k) == 3 for k in todo):
+                trees.extend(cKDTree(x if len(x) else np.full((1, 3), 1e9)) for x in X)
+            cache.update(zip(todo, pool.map(margin, todo)))
             if not keys:
                 break
-            ev, b, c = min((cache[k], k[0], k[2] if len(k) == 3 else -1) for k in keys)
+            ev, b, c = min((cache[k][0], k[0], k[2] if len(k) == 3 else -1) for k in keys)
             if ev >= 0:
                 break
             p = int(parent[b])
             removed.append((b, p, ev))
             if c >= 0:  # b's points shared out between p and c, c hung from p
                 lab_b = labels == b
-                to = share(b, p, c)
+                to = cache[(b, p, c)][1]
                 shared_out.append((b, c, float(np.mean(to == c))))
                 labels[lab_b] = to
                 point_bone[:, b] = np.where(labels == c, c, p)
