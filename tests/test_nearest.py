@@ -8,7 +8,7 @@ from scipy.spatial import cKDTree
 
 from pointrig import _core
 from pointrig.errors import InputError
-from pointrig.geometry import chamfer_misfit, nearest_distances
+from pointrig.geometry import chamfer_misfit, nearest_distances, nearest_distances_grouped
 
 
 def _scan_cloud(rng: np.random.Generator, n: int, outliers: float = 0.02) -> np.ndarray:
@@ -33,6 +33,27 @@ def test_distances_equal_the_kd_tree(cap: float) -> None:
     got = _core.capped_nn_distances(q, pts, cap)
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
     np.testing.assert_allclose(nearest_distances(q, pts, cap), want, rtol=0, atol=1e-12)
+
+
+def test_grouped_distances_equal_the_kd_tree_per_group() -> None:
+    """Each group's queries against its own points only, as scipy's k-d tree of that group
+    gives them (capped); a group without points gives the cap, one without queries nothing;
+    offsets that do not end at the row count are a typed error."""
+    rng = np.random.default_rng(4)
+    pts = [_scan_cloud(rng, 800), np.zeros((0, 3)), _scan_cloud(rng, 300) + [0.0, 0.0, 1.0],
+           _scan_cloud(rng, 500)]
+    qs = [_scan_cloud(rng, 400), _scan_cloud(rng, 50), np.zeros((0, 3)),
+          rng.uniform(-2, 2, (120, 3))]
+    cap = 0.25
+    want = np.concatenate([np.minimum(cKDTree(p).query(q)[0], cap) if len(p) else
+                           np.full(len(q), cap) for p, q in zip(pts, qs)])
+    offs = [np.concatenate([[0], np.cumsum([len(x) for x in xs])]) for xs in (qs, pts)]
+    got = nearest_distances_grouped(np.concatenate(qs), offs[0], np.concatenate(pts), offs[1],
+                                    cap)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+    with pytest.raises(InputError, match="query_offsets"):
+        nearest_distances_grouped(np.concatenate(qs), offs[0] - 1, np.concatenate(pts),
+                                  offs[1], cap)
 
 
 def test_degenerate_clouds() -> None:

@@ -246,6 +246,56 @@ def _ray_cast_cylinder(depth: float, radius: float, x_range: tuple[float, float]
     return P[(P[:, 0] >= x_range[0]) & (P[:, 0] <= x_range[1])]
 
 
+def _shortest_chord_numpy(uv: np.ndarray, centre: np.ndarray, band: float, gap: float,
+                          n_directions: int = 12) -> tuple[float, float, int] | None:
+    """The shortest chord as a numpy loop over the directions (the oracle of the Rust
+    kernel): ``(a, b, direction index)`` or ``None``."""
+    rel = uv - centre
+    best = None
+    for k, th in enumerate(np.linspace(0.0, np.pi, n_directions, endpoint=False)):
+        d = np.array([np.cos(th), np.sin(th)])
+        s = np.sort(rel[np.abs(rel @ np.array([-d[1], d[0]])) < band] @ d)
+        hi = int(np.searchsorted(s, 0.0))
+        if len(s) < 3 or hi == 0 or hi >= len(s) or s[hi] - s[hi - 1] > gap:
+            continue
+        breaks = np.flatnonzero(np.diff(s) > gap)
+        left, right = breaks[breaks < hi - 1], breaks[breaks >= hi]
+        a = float(s[left[-1] + 1] if len(left) else s[0])
+        b = float(s[right[0]] if len(right) else s[-1])
+        if best is None or b - a < best[1] - best[0]:
+            best = (a, b, k)
+    return best
+
+
+def test_shortest_chord_equals_the_numpy_loop() -> None:
+    """The Rust chord kernel against the numpy loop on random blobs with holes and stray
+    points: the same direction and ends (to rounding), ``None`` at the same centres, and rows
+    with a NaN left out."""
+    from pointrig.view import _shortest_chord
+
+    rng = np.random.default_rng(7)
+    found = 0
+    for trial in range(40):
+        n = int(rng.integers(200, 3000))
+        ax = rng.uniform(0.05, 0.5, 2)
+        p = rng.uniform(-1, 1, (n, 2)) * ax
+        p = p[(p[:, 0] / ax[0]) ** 2 + (p[:, 1] / ax[1]) ** 2 <= 1.0]
+        p = p[np.linalg.norm(p - rng.uniform(-0.2, 0.2, 2), axis=1) > rng.uniform(0, 0.1)]
+        p = np.vstack([p, rng.uniform(-1, 1, (10, 2))])
+        spacing = float(np.median(cKDTree(p).query(p, k=2)[0][:, 1]))
+        band, gap = 4.5 * spacing, 6.0 * spacing
+        centre = rng.uniform(-0.3, 0.3, 2) * ax
+        want = _shortest_chord_numpy(p, centre, band, gap)
+        got = _shortest_chord(np.vstack([p, [[np.nan, 0.0]]]), centre, band, gap, 12)
+        assert (got is None) == (want is None), trial
+        if want is not None:
+            found += 1
+            np.testing.assert_allclose(got[:2], want[:2], rtol=0, atol=1e-12)
+            th = np.pi * want[2] / 12
+            np.testing.assert_allclose(got[2], [np.cos(th), np.sin(th)], rtol=0, atol=1e-15)
+    assert found >= 20
+
+
 def test_chord_half_width_of_a_sampled_rectangle_is_half_its_short_side():
     g = np.arange(0.0, 1.0, 0.005)
     X, Y = np.meshgrid(g * 2.0, g * 0.4)

@@ -177,6 +177,23 @@ def capped_nn_distances(
     """``(n,)`` exact distance from each of ``queries (n, 3)`` to its nearest of
     ``points_ (N, 3)``, capped at ``cap`` (metres, > 0; ``cap`` everywhere when ``N = 0``)."""
 
+def shortest_chord(
+    uv: npt.NDArray[np.float64], centre: npt.NDArray[np.float64],
+    directions: npt.NDArray[np.float64], band: float, gap: float,
+) -> tuple[float, float, int] | None:
+    """The shortest chord through ``centre (2,)`` of the silhouette ``uv (n, 2)`` (rows with a
+    non-finite value ignored) over the unit ``directions (K, 2)``: ``(a, b, k)``, the chord from
+    ``centre + a d_k`` to ``centre + b d_k``, or ``None`` (``pointrig.view.chord_half_width``)."""
+
+def capped_nn_distances_grouped(
+    queries: npt.NDArray[np.float64], query_offsets: npt.NDArray[np.int64],
+    points_: npt.NDArray[np.float64], point_offsets: npt.NDArray[np.int64], cap: float,
+) -> npt.NDArray[np.float64]:
+    """``(n,)`` :func:`capped_nn_distances` of ``G`` groups in one call: the queries in rows
+    ``query_offsets[g]:query_offsets[g + 1]`` of ``queries (n, 3)`` against the points in rows
+    ``point_offsets[g]:point_offsets[g + 1]`` of ``points_ (N, 3)``; both offsets ``(G + 1,)``,
+    from 0 to their row count, not decreasing. The groups run side by side."""
+
 def kth_nn_distances(
     queries: npt.NDArray[np.float64], points_: npt.NDArray[np.float64], k: int,
 ) -> npt.NDArray[np.float64]:

@@ -36,6 +36,7 @@ __all__ = [
     "median_spacing",
     "mls_project",
     "nearest_distances",
+    "nearest_distances_grouped",
     "remove_sparse_points",
     "remove_statistical_outliers",
     "keep_normals",
@@ -336,6 +337,37 @@ def nearest_distances(queries: np.ndarray, points: np.ndarray,
     return _core.capped_nn_distances(np.ascontiguousarray(queries, dtype=np.float64),
                                      np.ascontiguousarray(points, dtype=np.float64),
                                      _NO_CAP if cap is None else float(cap))
+
+
+def nearest_distances_grouped(queries: np.ndarray, query_offsets: np.ndarray,
+                              points: np.ndarray, point_offsets: np.ndarray,
+                              cap: float) -> np.ndarray:
+    """:func:`nearest_distances` of ``G`` groups at once (Rust, the groups side by side).
+
+    Parameters
+    ----------
+    queries
+        ``(n, 3)`` the groups' queries one after another, metres.
+    query_offsets
+        ``(G + 1,)`` group ``g``'s queries are rows ``query_offsets[g]:query_offsets[g + 1]``.
+    points
+        ``(N, 3)`` the groups' points searched, one after another, metres.
+    point_offsets
+        ``(G + 1,)`` group ``g``'s points are rows ``point_offsets[g]:point_offsets[g + 1]``.
+    cap
+        Distances are returned as ``min(d, cap)`` (metres, > 0).
+
+    Returns
+    -------
+    np.ndarray
+        ``(n,)`` float64 distances, metres, each query's to the nearest point of its own group
+        (``cap`` for a group without points); the same values as one call per group.
+    """
+    return _core.capped_nn_distances_grouped(
+        np.ascontiguousarray(queries, dtype=np.float64),
+        np.ascontiguousarray(query_offsets, dtype=np.int64),
+        np.ascontiguousarray(points, dtype=np.float64),
+        np.ascontiguousarray(point_offsets, dtype=np.int64), float(cap))
 
 
 def chamfer_misfit(template: np.ndarray, data: np.ndarray, trunc: float) -> float:

@@ -48,7 +48,7 @@ from scipy.spatial import cKDTree
 
 from ._core import cluster_fit
 from .config import pool_size
-from .geometry import nearest_distances
+from .geometry import nearest_distances_grouped
 
 __all__ = ["JointSelection", "select_joints"]
 
@@ -178,6 +178,38 @@ def select_joints(frames: Sequence[np.ndarray], rest_points: np.ndarray, labels:
     cap2 = cap * cap
     d2 = [np.minimum(x, cap2) for x in d2]
     sigma2 = float(np.mean(np.concatenate(d2)))
+    # the frames scored one after another: raw points Xa, their frame, capped squared residual
+    # and the bone of their nearest posed point; the frames' rows start at xoff
+    nf = len(fidx)
+    Xa = np.concatenate(X)
+    xoff = np.concatenate([[0], np.cumsum([len(x) for x in X])])
+    frame_of = np.repeat(np.arange(nf), np.diff(xoff))
+    d2a, neara = np.concatenate(d2), np.concatenate(near)
+
+    def distances(sel: np.ndarray, posed: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        """The capped distances of the raw points ``sel`` (increasing flat indices) to the
+        posed points of their own frame (``posed[i]`` for frame ``i``), one Rust call; and
+        the ``(nf + 1,)`` offsets of each frame's share of ``sel``."""
+        qoff = np.concatenate([[0], np.cumsum(np.bincount(frame_of[sel], minlength=nf))])
+        poff = np.concatenate([[0], np.cumsum([len(x) for x in posed])])
+        return nearest_distances_grouped(Xa[sel], qoff, np.concatenate(posed), poff, cap), qoff
+
+    def dsse_of(sel: np.ndarray, dm: np.ndarray, qoff: np.ndarray) -> float:
+        """``sum_i wt_i (sum dm^2 - sum d2)`` over the frames, for the raw points ``sel``
+        with new distances ``dm``, each frame summed on its own."""
+        out = 0.0
+        for i in range(nf):
+            a, z = qoff[i], qoff[i + 1]
+            if z > a:
+                out += wt[i] * float(np.sum(dm[a:z] * dm[a:z]) - np.sum(d2a[sel[a:z]]))
+        return out
+
+    def count(qoff: np.ndarray) -> float:
+        """The weighted count of the raw points whose per-frame offsets are ``qoff``."""
+        out = 0.0
+        for i in range(nf):
+            out += wt[i] * int(qoff[i + 1] - qoff[i])
+        return out
 
     def merged_motion(g: np.ndarray, frames_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(len(frames_t), 3, 3)``, ``(len(frames_t), 3)``: the least-squares rigid motion
@@ -196,17 +228,11 @@ def select_joints(frames: Sequence[np.ndarray], rest_points: np.ndarray, labels:
     def evidence(b: int) -> float:
         p = parent[b]
         g = (labels == b) | (labels == p)
-        dsse = 0.0
-        n_pair = 0.0
         Rm_all, Tm_all = merged_motion(g, fidx)
-        for i in range(len(fidx)):
-            sel = (near[i] == b) | (near[i] == p)
-            n_pair += wt[i] * int(sel.sum())
-            if not sel.any():
-                continue
-            dm = nearest_distances(X[i][sel], Q[g] @ Rm_all[i].T + Tm_all[i], cap)
-            dsse += wt[i] * float(np.sum(dm * dm) - np.sum(d2[i][sel]))
-        return dsse / sigma2 - penalty(n_pair)
+        sel = np.flatnonzero((neara == b) | (neara == p))
+        Qg = Q[g]
+        dm, qoff = distances(sel, [Qg @ Rm_all[i].T + Tm_all[i] for i in range(nf)])
+        return dsse_of(sel, dm, qoff) / sigma2 - penalty(count(qoff))
 
     # the raw points of each frame scored (a far dummy point for an empty frame), built when
     # the first bone with one child is scored
@@ -227,28 +253,6 @@ def select_joints(frames: Sequence[np.ndarray], rest_points: np.ndarray, labels:
             cost.append(cx)
         return np.where(cost[0] <= cost[1], p, c)
 
-    def refit(lab: np.ndarray, group: tuple[int, ...], seen: tuple[int, ...],
-              bones: bool = False) -> tuple[list[np.ndarray], list[np.ndarray], float]:
-        """Per frame scored, the capped residuals of the raw points nearest the bones
-        ``seen`` against the posed points the labels ``lab`` give the bones ``group`` and
-        (with ``bones``) the bone of each one's nearest posed point; the (weighted) count of
-        those raw points."""
-        g = np.isin(lab, group)
-        Qg, lg = Q[g], lab[g]
-        dist, bone, n_g = [], [], 0.0
-        for i, t in enumerate(fidx):
-            sel = np.isin(near[i], seen)
-            n_g += wt[i] * int(sel.sum())
-            posed = _posed(Qg, lg, R[t], T[t])
-            if bones:
-                d, j = cKDTree(posed).query(X[i][sel])
-                dist.append(np.minimum(d, cap))
-                bone.append(lg[j])
-            else:
-                dist.append(nearest_distances(X[i][sel], posed, cap) if sel.any()
-                            else np.zeros(0))
-        return dist, bone, n_g
-
     def share_evidence(b: int, p: int, c: int) -> tuple[float, np.ndarray]:
         """The margin of sharing ``b`` out between ``p`` and ``c`` (their motions stay): the
         raw points nearest the three bones against the posed points of ``p`` and ``c`` with
@@ -256,11 +260,11 @@ def select_joints(frames: Sequence[np.ndarray], rest_points: np.ndarray, labels:
         to = share(b, p, c)
         lab = labels.copy()
         lab[labels == b] = to
-        dm, _, n_g = refit(lab, (p, c), (b, p, c))
-        dsse = sum(wt[i] * float(np.sum(dm[i] ** 2)
-                                 - np.sum(d2[i][np.isin(near[i], (b, p, c))]))
-                   for i in range(len(fidx)))
-        return dsse / sigma2 - penalty(n_g), to
+        g = (lab == p) | (lab == c)
+        Qg, lg = Q[g], lab[g]
+        sel = np.flatnonzero((neara == b) | (neara == p) | (neara == c))
+        dm, qoff = distances(sel, [_posed(Qg, lg, R[t], T[t]) for t in fidx])
+        return dsse_of(sel, dm, qoff) / sigma2 - penalty(count(qoff)), to
 
     def margin(key: tuple[int, ...]) -> tuple[float, np.ndarray | None]:
         """``(b, parent)``: merging ``b``; ``(b, parent, child)``: sharing ``b`` out."""
@@ -300,10 +304,15 @@ def select_joints(frames: Sequence[np.ndarray], rest_points: np.ndarray, labels:
                 point_bone[:, b] = np.where(labels == c, c, p)
                 parent[c] = p
                 alive.remove(b)
-                dm, bm, _ = refit(labels, (p, c), (b, p, c), bones=True)
-                for i in range(len(fidx)):
-                    sel = np.isin(near[i], (b, p, c))
-                    d2[i][sel], near[i][sel] = dm[i] ** 2, bm[i]
+                # the raw points nearest the three bones: their residuals and nearest bones
+                # against the posed points of p and c
+                g = (labels == p) | (labels == c)
+                Qg, lg = Q[g], labels[g]
+                sel = np.flatnonzero((neara == b) | (neara == p) | (neara == c))
+                for i, t in enumerate(fidx):
+                    s_i = sel[(sel >= xoff[i]) & (sel < xoff[i + 1])]
+                    d, j = cKDTree(_posed(Qg, lg, R[t], T[t])).query(Xa[s_i])
+                    d2a[s_i], neara[s_i] = np.minimum(d, cap) ** 2, lg[j]
                 cache = {k: v for k, v in cache.items() if not {p, b, c} & set(k)}
                 continue
             g = (labels == b) | (labels == p)
@@ -312,10 +321,10 @@ def select_joints(frames: Sequence[np.ndarray], rest_points: np.ndarray, labels:
             parent[parent == b] = p
             alive.remove(b)
             Qp = Q[labels == p]
-            for i, t in enumerate(fidx):
-                near[i][near[i] == b] = p
-                sel = near[i] == p
-                d2[i][sel] = nearest_distances(X[i][sel], Qp @ R[t, p].T + T[t, p], cap) ** 2
+            neara[neara == b] = p
+            sel = np.flatnonzero(neara == p)
+            dm, _ = distances(sel, [Qp @ R[t, p].T + T[t, p] for t in fidx])
+            d2a[sel] = dm ** 2
             cache = {k: v for k, v in cache.items() if p not in k and b not in k}
 
     keep = np.array(alive, dtype=np.int64)

@@ -15,11 +15,13 @@ Units: metres. The camera position is in the input frame (the origin for camera-
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 
 import numpy as np
 from scipy.spatial import cKDTree
 
+from . import _core
 from .kinematics import joint_trajectories
 
 __all__ = [
@@ -259,26 +261,21 @@ def _shortest_chord(uv: np.ndarray, centre: np.ndarray, band: float, gap: float,
                     n_directions: int) -> tuple[float, float, np.ndarray] | None:
     """The shortest chord of :func:`chord_half_width`: ``(a, b, d)``, the chord running from
     ``centre + a d`` to ``centre + b d`` along its unit direction ``d (2,)`` (``a < 0 < b`` up
-    to the sampling), or ``None``."""
-    rel = np.asarray(uv, dtype=np.float64) - np.asarray(centre, dtype=np.float64)
-    best: tuple[float, float, np.ndarray] | None = None
-    for th in np.linspace(0.0, np.pi, n_directions, endpoint=False):
-        d = np.array([np.cos(th), np.sin(th)])
-        s = np.sort(rel[np.abs(rel @ np.array([-d[1], d[0]])) < band] @ d)
-        if len(s) < 3:
-            continue
-        hi = int(np.searchsorted(s, 0.0))
-        lo = hi - 1
-        if lo < 0 or hi >= len(s) or s[hi] - s[lo] > gap:
-            continue
-        breaks = np.flatnonzero(np.diff(s) > gap)  # a chord ends at the first gap each way
-        left = breaks[breaks < lo]
-        right = breaks[breaks >= hi]
-        a = float(s[left[-1] + 1] if len(left) else s[0])
-        b = float(s[right[0]] if len(right) else s[-1])
-        if best is None or b - a < best[1] - best[0]:
-            best = (a, b, d)
-    return best
+    to the sampling), or ``None``. Rust (``_core.shortest_chord``)."""
+    dirs = _directions(n_directions)
+    chord = _core.shortest_chord(np.ascontiguousarray(uv, dtype=np.float64),
+                                 np.asarray(centre, dtype=np.float64).reshape(2), dirs,
+                                 float(band), float(gap))
+    return None if chord is None else (chord[0], chord[1], dirs[chord[2]].copy())
+
+
+@functools.lru_cache(maxsize=8)
+def _directions(n: int) -> np.ndarray:
+    """``(n, 2)`` unit directions evenly spread over 180 deg from the x axis (read-only)."""
+    d = np.array([[np.cos(th), np.sin(th)]
+                  for th in np.linspace(0.0, np.pi, n, endpoint=False)]).reshape(n, 2)
+    d.flags.writeable = False
+    return d
 
 
 def chord_roundness(uv: np.ndarray, z: np.ndarray, centre: np.ndarray, band: float,

@@ -3,6 +3,7 @@
 pub mod error;
 pub mod rotation;
 
+pub mod chord;
 pub mod cluster;
 pub mod deform;
 pub mod gmm;

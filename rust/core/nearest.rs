@@ -396,6 +396,69 @@ pub fn capped_nn_distances(queries: &[f64], points: &[f64], cap: f64) -> CoreRes
     Ok(out)
 }
 
+/// [`capped_nn_distances`] of `G` groups in one call: group `g`'s queries, rows
+/// `query_offsets[g]..query_offsets[g + 1]` of `queries` (flat `(n, 3)`), against its points,
+/// rows `point_offsets[g]..point_offsets[g + 1]` of `points` (flat `(N, 3)`); the distances in
+/// the queries' order. Both offset lists have `G + 1` entries, start at 0, do not decrease and
+/// end at their array's row count. The groups run side by side, one thread each; every
+/// distance is exact, so the result does not depend on the thread count.
+pub fn capped_nn_distances_grouped(
+    queries: &[f64],
+    query_offsets: &[usize],
+    points: &[f64],
+    point_offsets: &[usize],
+    cap: f64,
+) -> CoreResult<Vec<f64>> {
+    check("queries", queries)?;
+    check("points", points)?;
+    if !(cap.is_finite() && cap > 0.0) {
+        return Err(CoreError::InvalidInput(format!(
+            "distance cap must be positive and finite, got {cap}"
+        )));
+    }
+    for (name, offs, rows) in [
+        ("query_offsets", query_offsets, queries.len() / 3),
+        ("point_offsets", point_offsets, points.len() / 3),
+    ] {
+        if offs.first() != Some(&0)
+            || offs.last() != Some(&rows)
+            || offs.windows(2).any(|w| w[1] < w[0])
+        {
+            return Err(CoreError::InvalidInput(format!(
+                "{name}: must rise from 0 to the {rows} rows without decreasing"
+            )));
+        }
+    }
+    if query_offsets.len() != point_offsets.len() {
+        return Err(CoreError::InvalidInput(format!(
+            "{} query groups but {} point groups",
+            query_offsets.len() - 1,
+            point_offsets.len() - 1
+        )));
+    }
+    let cap2 = cap * cap;
+    let mut out = vec![cap; queries.len() / 3];
+    let mut parts = Vec::with_capacity(query_offsets.len() - 1);
+    let mut rest = out.as_mut_slice();
+    for g in 0..query_offsets.len() - 1 {
+        let (head, tail) = rest.split_at_mut(query_offsets[g + 1] - query_offsets[g]);
+        parts.push((g, head));
+        rest = tail;
+    }
+    parts.into_par_iter().for_each(|(g, o)| {
+        let p = &points[3 * point_offsets[g]..3 * point_offsets[g + 1]];
+        if o.is_empty() || p.is_empty() {
+            return; // no queries, or every distance the cap
+        }
+        let grid = Nearest::new(p);
+        let q = &queries[3 * query_offsets[g]..3 * query_offsets[g + 1]];
+        for (d, q) in o.iter_mut().zip(q.chunks_exact(3)) {
+            *d = grid.nearest_sq([q[0], q[1], q[2]], cap2).sqrt().min(cap);
+        }
+    });
+    Ok(out)
+}
+
 /// For each query (flat `(n, 3)`), the distance to its `k`-th nearest point of `points`
 /// (flat `(N, 3)`, `1 <= k <= N`; a query that is itself one of the points counts itself
 /// as its first nearest, as a k-d tree's `query(points, k)` does). Exact; each query is
@@ -548,6 +611,37 @@ mod tests {
                 assert!((g - w).abs() < 1e-12, "cap {cap}: {g} vs {w}");
             }
         }
+    }
+
+    #[test]
+    fn grouped_distances_equal_one_call_per_group() {
+        // three groups: an ordinary one, one with no points (every distance the cap) and one
+        // with no queries, then another ordinary one; each equal to its own call bit for bit
+        let mut s = 11u64;
+        let p1 = sphere(&mut s, 700);
+        let p3 = sphere(&mut s, 300);
+        let q1 = sphere(&mut s, 250);
+        let q2 = sphere(&mut s, 40);
+        let q3 = sphere(&mut s, 90);
+        let qs = [q1.clone(), q2.clone(), vec![], q3.clone()];
+        let ps = [p1.clone(), vec![], p3.clone(), p3.clone()];
+        let offs = |v: &[Vec<f64>]| {
+            let mut o = vec![0usize];
+            for x in v {
+                o.push(o.last().unwrap() + x.len() / 3);
+            }
+            o
+        };
+        let got =
+            capped_nn_distances_grouped(&qs.concat(), &offs(&qs), &ps.concat(), &offs(&ps), 0.3)
+                .unwrap();
+        let mut want = capped_nn_distances(&q1, &p1, 0.3).unwrap();
+        want.extend(vec![0.3; q2.len() / 3]);
+        want.extend(capped_nn_distances(&q3, &p3, 0.3).unwrap());
+        assert_eq!(got, want);
+        // offsets that do not end at the row count are an error, not a panic
+        assert!(capped_nn_distances_grouped(&q1, &[0, 10], &p1, &[0, 700], 0.3).is_err());
+        assert!(capped_nn_distances_grouped(&q1, &[0, 250], &p1, &[0, 700, 700], 0.3).is_err());
     }
 
     #[test]

@@ -1,11 +1,11 @@
-//! Bindings for small shared kernels (rotations).
+//! Bindings for small shared kernels (rotations, the depth pass's silhouette chords).
 
 use nalgebra::Vector3;
-use numpy::{PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2};
+use numpy::{PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 
-use super::{flat1, input_err, points, to_array2};
-use crate::core::rotation;
+use super::{flat1, flat2, input_err, points, to_array2, to_pyerr, CSlice};
+use crate::core::{chord, rotation};
 
 fn as_vecs(flat: &[f64]) -> Vec<Vector3<f64>> {
     flat.chunks_exact(3)
@@ -54,7 +54,37 @@ fn kabsch<'py>(
     ))
 }
 
+/// The shortest chord of a silhouette through a pixel (see `_core.pyi`).
+#[pyfunction]
+fn shortest_chord<'py>(
+    py: Python<'py>,
+    uv: PyReadonlyArray2<'py, f64>,
+    centre: PyReadonlyArray1<'py, f64>,
+    directions: PyReadonlyArray2<'py, f64>,
+    band: f64,
+    gap: f64,
+) -> PyResult<Option<(f64, f64, usize)>> {
+    if uv.shape()[1] != 2 {
+        return Err(input_err(format!(
+            "uv: expected shape (n, 2), got {:?}",
+            uv.shape()
+        )));
+    }
+    let u = uv.c_slice("uv")?; // rows with a non-finite value are left out, not refused
+    let c = flat1(py, &centre, "centre")?;
+    let &[c0, c1] = c else {
+        return Err(input_err(format!(
+            "centre: expected 2 values, got {}",
+            c.len()
+        )));
+    };
+    let d = flat2(py, &directions, "directions", 2)?;
+    py.detach(|| chord::shortest_chord(u, [c0, c1], d, band, gap))
+        .map_err(|e| to_pyerr(py, e))
+}
+
 pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(kabsch, m)?)?;
+    m.add_function(wrap_pyfunction!(shortest_chord, m)?)?;
     Ok(())
 }

@@ -533,6 +533,36 @@ fn capped_nn_distances<'py>(
     })
 }
 
+/// Each group's queries' distances to the group's nearest point, capped (see `_core.pyi`).
+#[pyfunction]
+fn capped_nn_distances_grouped<'py>(
+    py: Python<'py>,
+    queries: PyReadonlyArray2<'py, f64>,
+    query_offsets: PyReadonlyArray1<'py, i64>,
+    points_: PyReadonlyArray2<'py, f64>,
+    point_offsets: PyReadonlyArray1<'py, i64>,
+    cap: f64,
+) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    let q = points(py, &queries, "queries")?;
+    let p = points(py, &points_, "points")?;
+    let offs = |a: &PyReadonlyArray1<'py, i64>, name: &str| -> PyResult<Vec<usize>> {
+        a.c_slice(name)?
+            .iter()
+            .map(|&v| {
+                usize::try_from(v).map_err(|_| input_err(format!("{name}: negative offset {v}")))
+            })
+            .collect()
+    };
+    let (qo, po) = (
+        offs(&query_offsets, "query_offsets")?,
+        offs(&point_offsets, "point_offsets")?,
+    );
+    let d = py
+        .detach(|| crate::core::nearest::capped_nn_distances_grouped(q, &qo, p, &po, cap))
+        .map_err(|e| to_pyerr(py, e))?;
+    Ok(PyArray1::from_vec(py, d))
+}
+
 /// Each query's distance to its `k`-th nearest point (see `_core.pyi`).
 #[pyfunction]
 fn kth_nn_distances<'py>(
@@ -569,6 +599,7 @@ pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(surface_normals, m)?)?;
     m.add_function(wrap_pyfunction!(chamfer_misfit, m)?)?;
     m.add_function(wrap_pyfunction!(capped_nn_distances, m)?)?;
+    m.add_function(wrap_pyfunction!(capped_nn_distances_grouped, m)?)?;
     m.add_function(wrap_pyfunction!(farthest_point_sampling, m)?)?;
     m.add_function(wrap_pyfunction!(kth_nn_distances, m)?)?;
     m.add_class::<DeformGraph>()?;
