@@ -64,6 +64,42 @@ def test_a_frame_of_mostly_outliers_is_cleaned_against_its_dense_points():
     assert removed[1] == 1 - len(cleaned.frames[1]) / len(surf)
 
 
+def test_fraction_left_equals_a_fresh_count_on_the_cleaned_frames():
+    """The fraction of each cleaned frame's points that still look like outliers, which the
+    clean-up reads from the neighbour distances it already has, equals
+    :func:`outlier_fraction` counted afresh on the cleaned frame; the frames are cleaned as
+    :func:`remove_sparse_points` (or its dense-reference form) cleans them."""
+    rng = np.random.default_rng(3)
+    surf = _surface(rng)
+    frames = [surf, np.vstack([surf, _scatter(rng, surf, 200)]),
+              np.vstack([surf, _scatter(rng, surf, 5000)]),  # mostly outliers: cleaned again
+              surf[:8]]  # too few points to judge
+    report: dict = {}
+    cleaned, _ = remove_sparse_frames(PointSequence(frames), 10, 4.0, min_points=5,
+                                      report=report)
+    assert report["suspect"].tolist() == [False, False, True, False]
+    for i, (f, c) in enumerate(zip(frames, cleaned.frames)):
+        assert report["outliers_left"][i] == outlier_fraction(c, 10), i
+        if i != 2:
+            np.testing.assert_array_equal(c, remove_sparse_points(f, 10, 4.0))
+
+
+def test_kept_points_distances_are_searched_again_only_where_they_change():
+    """The clean-up's neighbour distances among the kept points, from those among all points,
+    equal a fresh search of the kept points: also where removing the scatter changed them."""
+    from pointrig.preprocess import _kept_distances, _kth_distances
+
+    rng = np.random.default_rng(4)
+    surf = _surface(rng)
+    frame = np.vstack([surf, _scatter(rng, surf, 5000)])
+    dk = _kth_distances(frame, 10)
+    keep = dk <= 4.0 * np.median(dk[dk <= 3.0 * np.quantile(dk, 0.1)])  # the dense reference
+    got = _kept_distances(frame, dk, keep, 10)
+    want = _kth_distances(frame[keep], 10)
+    np.testing.assert_array_equal(got, want)
+    assert (want != dk[keep]).sum() >= 5  # the removal changed some kept points' distances
+
+
 def test_extract_warns_and_records_mostly_outlier_input(tmp_path, caplog):
     clean = synthesize("arm", n_frames=4, seed=2, noise=NoiseConfig.clean())
     # as many uniform outliers as surface points in every frame

@@ -23,6 +23,7 @@ from .errors import EmptyFrameError, InputError
 from .geometry import (
     farthest_point_sampling,
     mls_project,
+    nearest_distances,
     remove_sparse_points,
     remove_statistical_outliers,
 )
@@ -55,17 +56,37 @@ def outlier_fraction(points: np.ndarray, k: int = 10) -> float:
     holds a good part of the points, where the median (the clean-up's reference) does not."""
     if len(points) <= k + 1:
         return 0.0
-    dk = _kth_distances(points, k)
+    return _fraction(_kth_distances(points, k))
+
+
+def _fraction(dk: np.ndarray) -> float:
+    """:func:`outlier_fraction` from the ``(N,)`` ``k``-th neighbour distances."""
     return float(np.mean(dk > OUTLIER_FACTOR * np.quantile(dk, 0.1)))
 
 
-def _remove_sparse_dense_reference(points: np.ndarray, k: int, ratio: float) -> np.ndarray:
-    """:func:`remove_sparse_points` with the median taken over the points that do not look
-    like outliers (:func:`outlier_fraction`) only: the clean-up of a frame that is mostly a
-    uniform scatter, whose overall median lies among the outliers."""
-    dk = _kth_distances(points, k)
-    dense = dk[dk <= OUTLIER_FACTOR * np.quantile(dk, 0.1)]
-    return points[dk <= ratio * np.median(dense)]
+def _kept_fraction(points: np.ndarray, dk: np.ndarray, keep: np.ndarray, k: int) -> float:
+    """:func:`outlier_fraction` of ``points[keep]`` from ``dk (N,)``, the ``k``-th neighbour
+    distances among all ``points (N, 3)`` (:func:`_kept_distances`)."""
+    if int(keep.sum()) <= k + 1:
+        return 0.0
+    return _fraction(_kept_distances(points, dk, keep, k))
+
+
+def _kept_distances(points: np.ndarray, dk: np.ndarray, keep: np.ndarray, k: int
+                    ) -> np.ndarray:
+    """``(N',)`` the ``k``-th neighbour distance (metres) of each of ``points[keep]`` among
+    those points alone, from ``dk (N,)``, the distances among all ``points (N, 3)``: a kept
+    point's distance changes only where a removed point lies within it, and only those points
+    are searched again, so the values are those of searching every kept point (more than
+    ``k + 1`` kept)."""
+    kept = np.ascontiguousarray(points[keep], dtype=np.float64)
+    d = dk[keep].copy()
+    gone = points[~keep]
+    if len(gone) and d.max() > 0:
+        again = nearest_distances(kept, gone, float(d.max())) <= d
+        if again.any():
+            d[again] = _core.kth_nn_distances(np.ascontiguousarray(kept[again]), kept, k + 1)
+    return d
 
 
 def remove_sparse_frames(seq: PointSequence, k: int = 10, ratio: float = 4.0,
@@ -110,12 +131,20 @@ def remove_sparse_frames(seq: PointSequence, k: int = 10, ratio: float = 4.0,
         return seq, np.zeros(seq.n_frames)
     out, removed = frames_like(seq.frames), np.zeros(seq.n_frames)  # on disk if the input is
     for i, pts in enumerate(seq.frames):
-        kept = remove_sparse_points(pts, k, ratio)
-        left[i] = outlier_fraction(kept, k)
-        if left[i] > OUTLIER_SUSPECT:
-            suspect[i] = True
-            kept = _remove_sparse_dense_reference(pts, k, ratio)
-            left[i] = outlier_fraction(kept, k)
+        if len(pts) <= k + 1:  # too few to judge: kept whole, as remove_sparse_points does
+            kept = pts.copy()
+        else:
+            # remove_sparse_points, and the fraction left from the same neighbour distances
+            dk = _kth_distances(pts, k)
+            keep = dk <= ratio * np.median(dk)
+            left[i] = _kept_fraction(pts, dk, keep, k)
+            if left[i] > OUTLIER_SUSPECT:
+                # cleaned again against the median of the points that do not look like
+                # outliers: a frame mostly of a uniform scatter, whose median lies among them
+                suspect[i] = True
+                keep = dk <= ratio * np.median(dk[dk <= OUTLIER_FACTOR * np.quantile(dk, 0.1)])
+                left[i] = _kept_fraction(pts, dk, keep, k)
+            kept = pts[keep]
         if len(kept) < min_points:
             raise EmptyFrameError(
                 f"only {len(kept)} point(s) left after removing sparse points (fewer than "
