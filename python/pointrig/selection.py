@@ -309,8 +309,9 @@ def select_joints(frames: Sequence[np.ndarray], rest_points: np.ndarray, labels:
                 g = (labels == p) | (labels == c)
                 Qg, lg = Q[g], labels[g]
                 sel = np.flatnonzero((neara == b) | (neara == p) | (neara == c))
+                cut = np.searchsorted(sel, xoff)
                 for i, t in enumerate(fidx):
-                    s_i = sel[(sel >= xoff[i]) & (sel < xoff[i + 1])]
+                    s_i = sel[cut[i]:cut[i + 1]]
                     d, j = cKDTree(_posed(Qg, lg, R[t], T[t])).query(Xa[s_i])
                     d2a[s_i], neara[s_i] = np.minimum(d, cap) ** 2, lg[j]
                 cache = {k: v for k, v in cache.items() if not {p, b, c} & set(k)}
