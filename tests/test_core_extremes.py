@@ -74,6 +74,11 @@ def _calls(pts: Callable[[np.ndarray], np.ndarray]) -> dict[str, Callable[[], ob
         "surface_normals": lambda: _core.surface_normals(q, q, 0.05),
         "chamfer_misfit": lambda: _core.chamfer_misfit(q, q, 0.1),
         "capped_nn_distances": lambda: _core.capped_nn_distances(q, q, 0.1),
+        "capped_nn_distances_grouped": lambda: _core.capped_nn_distances_grouped(
+            v, offsets, v, offsets, 0.1),
+        "shortest_chord": lambda: _core.shortest_chord(
+            np.ascontiguousarray(q[:, :2]), np.zeros(2), np.array([[1.0, 0.0], [0.0, 1.0]]),
+            0.5, 1.0),
         "kth_nn_distances": lambda: _core.kth_nn_distances(q, q, 3),
         "farthest_point_sampling": lambda: _core.farthest_point_sampling(q, 10, 0),
         "deform_graph": lambda: graph().deform(r_nodes, np.zeros((4, 3))),
@@ -141,6 +146,8 @@ cases = {
     "cluster_fit 2**62": lambda: _core.cluster_fit(q, y, lab, 2**62),
     "farthest_point_sampling 2**62": lambda: _core.farthest_point_sampling(q, 2**62, 0),
     "kth_nn_distances 2**62": lambda: _core.kth_nn_distances(q, q, 2**62),
+    "capped_nn_distances_grouped offsets 2**62": lambda: _core.capped_nn_distances_grouped(
+        q, np.array([0, 2**62]), q, np.array([0, 20]), 0.1),
     "lbs_fit_weights k 2**40": lambda: _core.lbs_fit_weights(
         q, np.tile(np.eye(3).ravel(), (2, 1)), np.zeros((2, 3)), np.ones((2, 20)),
         np.ascontiguousarray(y.reshape(-1, 3)), 2, 2**40),
@@ -163,5 +170,5 @@ def test_absurd_sizes_raise_instead_of_aborting():
                          text=True, timeout=300)
     assert run.returncode == 0, f"the process died ({run.returncode}): {run.stdout}{run.stderr}"
     lines = run.stdout.splitlines()
-    assert len(lines) == 7, run.stdout + run.stderr
+    assert len(lines) == 8, run.stdout + run.stderr
     assert not [ln for ln in lines if " WRONG " in ln], run.stdout
