@@ -12,18 +12,10 @@ use pyo3::prelude::*;
 
 use super::CSlice;
 
-use super::{flat1, flat2, input_err, points, to_array2, to_pyerr};
+use super::{flat1, flat2, input_err, points, to_array2, to_indices, to_pyerr};
 use crate::core::lbs::{self, Dims, SparseWeights};
 use crate::core::qp;
 use crate::core::track;
-
-/// Non-negative int64 values as indices; a negative one is an `InputError` naming `name`.
-fn to_indices(values: &[i64], name: &str) -> PyResult<Vec<usize>> {
-    values
-        .iter()
-        .map(|&v| usize::try_from(v).map_err(|_| input_err(format!("{name}: negative index {v}"))))
-        .collect()
-}
 
 fn indices(arr: &PyReadonlyArray2<'_, i64>, name: &str) -> PyResult<(Vec<usize>, usize)> {
     Ok((to_indices(arr.c_slice(name)?, name)?, arr.shape()[1]))

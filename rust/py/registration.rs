@@ -14,7 +14,7 @@ use pyo3::prelude::*;
 use super::CSlice;
 use pyo3::types::PyDict;
 
-use super::{flat1, flat2, input_err, points, to_array2, to_pyerr};
+use super::{flat1, flat2, input_err, points, to_array2, to_indices, to_pyerr};
 use crate::core::deform::{self, DataTerm, FrameParams, Graph, NodeState, Solver, Weights};
 use crate::core::error::{check_finite, CoreResult};
 use crate::core::gmm::{self, Precision};
@@ -545,18 +545,8 @@ fn capped_nn_distances_grouped<'py>(
 ) -> PyResult<Bound<'py, PyArray1<f64>>> {
     let q = points(py, &queries, "queries")?;
     let p = points(py, &points_, "points")?;
-    let offs = |a: &PyReadonlyArray1<'py, i64>, name: &str| -> PyResult<Vec<usize>> {
-        a.c_slice(name)?
-            .iter()
-            .map(|&v| {
-                usize::try_from(v).map_err(|_| input_err(format!("{name}: negative offset {v}")))
-            })
-            .collect()
-    };
-    let (qo, po) = (
-        offs(&query_offsets, "query_offsets")?,
-        offs(&point_offsets, "point_offsets")?,
-    );
+    let qo = to_indices(query_offsets.c_slice("query_offsets")?, "query_offsets")?;
+    let po = to_indices(point_offsets.c_slice("point_offsets")?, "point_offsets")?;
     let d = py
         .detach(|| crate::core::nearest::capped_nn_distances_grouped(q, &qo, p, &po, cap))
         .map_err(|e| to_pyerr(py, e))?;
