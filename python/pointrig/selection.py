@@ -176,15 +176,15 @@ def select_joints(frames: Sequence[np.ndarray], rest_points: np.ndarray, labels:
         keep = np.arange(B)
         return JointSelection(keep, keep.copy(), labels, parent, R, T)
     cap2 = cap * cap
-    d2 = [np.minimum(x, cap2) for x in d2]
-    sigma2 = float(np.mean(np.concatenate(d2)))
     # the frames scored one after another: raw points Xa, their frame, capped squared residual
     # and the bone of their nearest posed point; the frames' rows start at xoff
     nf = len(fidx)
     Xa = np.concatenate(X)
     xoff = np.concatenate([[0], np.cumsum([len(x) for x in X])])
     frame_of = np.repeat(np.arange(nf), np.diff(xoff))
-    d2a, neara = np.concatenate(d2), np.concatenate(near)
+    d2a, neara = np.minimum(np.concatenate(d2), cap2), np.concatenate(near)
+    del d2, near
+    sigma2 = float(np.mean(d2a))
 
     def distances(sel: np.ndarray, posed: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
         """The capped distances of the raw points ``sel`` (increasing flat indices) to the
@@ -221,7 +221,6 @@ def select_joints(frames: Sequence[np.ndarray], rest_points: np.ndarray, labels:
 
     def penalty(n_pair: float) -> float:
         """The BIC's charge for one ball joint seen by ``n_pair`` (weighted) raw points."""
-        nf = len(fidx)
         return penalty_scale * (3 * nf * np.log(max(n_pair / nf, 2.0))
                                 + 3 * np.log(max(n_pair, 2)))
 
@@ -243,12 +242,13 @@ def select_joints(frames: Sequence[np.ndarray], rest_points: np.ndarray, labels:
         nearer, over the frames scored, both the raw points (capped) and ``b``'s own pose of
         it (squared distances, summed)."""
         qb = Q[labels == b]
+        own = [qb @ R[t, b].T for t in fidx]  # b's own pose of its points, less T[t, b]
         cost = []
         for x in (p, c):
             cx = np.zeros(len(qb))
             for i, t in enumerate(fidx):
                 y = qb @ R[t, x].T + T[t, x]
-                cx += np.sum((y - qb @ R[t, b].T - T[t, b]) ** 2, axis=1)
+                cx += np.sum((y - own[i] - T[t, b]) ** 2, axis=1)
                 cx += np.minimum(trees[i].query(y, distance_upper_bound=cap)[0], cap) ** 2
             cost.append(cx)
         return np.where(cost[0] <= cost[1], p, c)
@@ -297,10 +297,9 @@ def select_joints(frames: Sequence[np.ndarray], rest_points: np.ndarray, labels:
             p = int(parent[b])
             removed.append((b, p, ev))
             if c >= 0:  # b's points shared out between p and c, c hung from p
-                lab_b = labels == b
                 to = cache[(b, p, c)][1]
                 shared_out.append((b, c, float(np.mean(to == c))))
-                labels[lab_b] = to
+                labels[labels == b] = to
                 point_bone[:, b] = np.where(labels == c, c, p)
                 parent[c] = p
                 alive.remove(b)
