@@ -170,7 +170,8 @@ def select_joints(frames: Sequence[np.ndarray], rest_points: np.ndarray, labels:
         d2.append(d ** 2)
         near.append(labels[j])
         wt.append(len(np.unique(j)) / max(len(j), 1))
-    resid = np.sqrt(np.concatenate(d2)) if n else np.zeros(1)
+    d2a = np.concatenate(d2) if n else np.zeros(1)
+    resid = np.sqrt(d2a)
     cap = 3.0 * float(np.median(resid)) / 0.6745
     if penalty_scale <= 0 or B < 2 or n == 0 or cap <= 0:
         keep = np.arange(B)
@@ -182,7 +183,7 @@ def select_joints(frames: Sequence[np.ndarray], rest_points: np.ndarray, labels:
     Xa = np.concatenate(X)
     xoff = np.concatenate([[0], np.cumsum([len(x) for x in X])])
     frame_of = np.repeat(np.arange(nf), np.diff(xoff))
-    d2a, neara = np.minimum(np.concatenate(d2), cap2), np.concatenate(near)
+    d2a, neara = np.minimum(d2a, cap2), np.concatenate(near)
     del d2, near
     sigma2 = float(np.mean(d2a))
 

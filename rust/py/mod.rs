@@ -106,7 +106,7 @@ pub(crate) fn input_err(msg: impl Into<String>) -> PyErr {
 }
 
 /// Non-negative int64 values as indices; a negative one is an `InputError` naming `name`.
-fn to_indices(values: &[i64], name: &str) -> PyResult<Vec<usize>> {
+pub(crate) fn to_indices(values: &[i64], name: &str) -> PyResult<Vec<usize>> {
     values
         .iter()
         .map(|&v| usize::try_from(v).map_err(|_| input_err(format!("{name}: negative index {v}"))))
